@@ -1,0 +1,1 @@
+"""Datasets: the on-disk format, source adapters, scenes and training windows."""

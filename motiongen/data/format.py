@@ -1,0 +1,417 @@
+"""The motiongen on-disk dataset format (documented in docs/data_format.md).
+
+Every source (synthetic generator, TRUMANS release, BVH) converts into this one layout.
+Per-frame arrays are concatenated over all sequences and memory-mapped on open, so RAM does
+not grow with the dataset. `DatasetWriter` streams sequences to disk and publishes the
+dataset with one directory rename; `MotionDataset.open` validates everything at open time.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from motiongen.data.occupancy import OccupancyGrid, load_npy
+from motiongen.errors import DataError
+from motiongen.skeleton import JointSet, joint_set_for
+
+FORMAT_NAME = "motiongen-dataset"
+FORMAT_VERSION = 1
+SMPLX_FIELDS = {"global_orient": 3, "body_pose": 63, "transl": 3, "betas": 10}
+# TRUMANS convention (seed 001, B.2): split by scene id.
+DEFAULT_SPLITS = {"train": list(range(1, 71)), "val": list(range(71, 81)), "test": list(range(91, 101))}
+
+
+@dataclass
+class Sequence:
+    name: str
+    start: int   # first frame (inclusive) in the concatenated arrays
+    end: int     # one past the last frame
+    scene: int   # scene id
+
+    @property
+    def num_frames(self) -> int:
+        return self.end - self.start
+
+
+# ---------------------------------------------------------------------------------------
+# Writing
+
+
+class _RawColumn:
+    """Appends rows of a fixed per-row shape/dtype to a raw file; `finish` writes the .npy."""
+
+    def __init__(self, path: Path, row_shape: tuple[int, ...], dtype):
+        self.path, self.row_shape, self.dtype = path, tuple(row_shape), np.dtype(dtype)
+        self.raw = path.with_suffix(".raw")
+        self.f = open(self.raw, "wb")
+        self.rows = 0
+
+    def append(self, a: np.ndarray) -> None:
+        a = np.ascontiguousarray(a, dtype=self.dtype)
+        if a.shape[1:] != self.row_shape:
+            raise ValueError(f"{self.path.name}: rows of shape {self.row_shape} expected, got {a.shape[1:]}")
+        a.tofile(self.f)
+        self.rows += a.shape[0]
+
+    def finish(self) -> None:
+        self.f.close()
+        header = {"descr": np.lib.format.dtype_to_descr(self.dtype), "fortran_order": False,
+                  "shape": (self.rows,) + self.row_shape}
+        with open(self.path, "wb") as out, open(self.raw, "rb") as src:
+            np.lib.format.write_array_header_2_0(out, header)
+            shutil.copyfileobj(src, out, length=16 << 20)
+        self.raw.unlink()
+
+
+class DatasetWriter:
+    """Streams sequences, scenes and objects into a new dataset directory.
+
+    Everything is written under ``<root>.partial-<pid>``; `finish` renames it to `root`, so a
+    crash never leaves a half-written dataset where a reader would find it.
+
+        w = DatasetWriter(root, joint_set=BODY, actions=[...], fps=30, num_object_slots=2)
+        w.add_scene(1, grid=grid, mesh=mesh)
+        w.add_object(0, name="cup_0", type="cup", mesh=cup_mesh)
+        w.add_sequence("walk_000", scene=1, joints=..., actions=..., contact=..., ...)
+        w.finish(splits=DEFAULT_SPLITS, source="synthetic")
+    """
+
+    def __init__(self, root: str | Path, joint_set: JointSet, actions: list[str], fps: float,
+                 num_object_slots: int = 0, has_smplx: bool = False, overwrite: bool = False):
+        self.root = Path(root)
+        if self.root.exists() and not overwrite:
+            raise DataError(self.root, None, "dataset directory already exists (pass overwrite)")
+        self.tmp = self.root.with_name(self.root.name + f".partial-{os.getpid()}")
+        if self.tmp.exists():
+            shutil.rmtree(self.tmp)
+        (self.tmp / "scenes").mkdir(parents=True)
+        (self.tmp / "objects").mkdir()
+        self.joint_set, self.actions, self.fps = joint_set, list(actions), float(fps)
+        self.K, self.has_smplx, self.overwrite = int(num_object_slots), has_smplx, overwrite
+        J, A, K = joint_set.num_joints, len(self.actions), self.K
+        col = lambda name, shape, dt: _RawColumn(self.tmp / f"{name}.npy", shape, dt)  # noqa: E731
+        self.cols = {"joints": col("joints", (J, 3), np.float32), "scene_id": col("scene_id", (), np.int32),
+                     "contact": col("contact", (J,), bool), "actions": col("actions", (A,), bool)}
+        if K:
+            self.cols["object_poses"] = col("object_poses", (K, 4, 4), np.float32)
+            self.cols["object_ids"] = col("object_ids", (K,), np.int32)
+        if has_smplx:
+            for k, d in SMPLX_FIELDS.items():
+                self.cols[f"smplx_{k}"] = col(f"smplx_{k}", (d,), np.float32)
+        self.sequences: list[dict] = []
+        self.scenes: dict[int, dict] = {}
+        self.objects: dict[int, dict] = {}
+        self.frames = 0
+
+    def add_scene(self, scene_id: int, grid: OccupancyGrid | None = None, mesh=None, name: str | None = None) -> None:
+        """A scene: its occupancy grid and/or its mesh (a trimesh.Trimesh, saved as .ply)."""
+        scene_id = int(scene_id)
+        stem = f"scene_{scene_id:03d}"
+        entry: dict = {"name": name or stem, "grid": None, "mesh": None}
+        if grid is not None:
+            grid.save(self.tmp / "scenes" / stem)
+            entry["grid"] = f"scenes/{stem}"
+        if mesh is not None:
+            mesh.export(self.tmp / "scenes" / f"{stem}.ply")
+            entry["mesh"] = f"scenes/{stem}.ply"
+        self.scenes[scene_id] = entry
+
+    def add_object(self, object_id: int, name: str, type: str, mesh=None) -> None:
+        entry = {"name": name, "type": type, "mesh": None}
+        if mesh is not None:
+            mesh.export(self.tmp / "objects" / f"{name}.ply")
+            entry["mesh"] = f"objects/{name}.ply"
+        self.objects[int(object_id)] = entry
+
+    def add_sequence(self, name: str, scene: int, joints, actions, contact, object_poses=None,
+                     object_ids=None, smplx: dict | None = None) -> None:
+        """One sequence of T frames: joints (T,J,3), actions (T,A) bool, contact (T,J) bool,
+        object_poses (T,K,4,4) and object_ids (T,K) (-1 = empty slot), smplx {field: (T,d)}."""
+        T = len(joints)
+        if T == 0:
+            raise ValueError(f"sequence {name!r} is empty")
+        self.cols["joints"].append(joints)
+        self.cols["scene_id"].append(np.full(T, scene, np.int32))
+        self.cols["contact"].append(contact)
+        self.cols["actions"].append(actions)
+        if self.K:
+            self.cols["object_poses"].append(np.broadcast_to(np.eye(4, dtype=np.float32), (T, self.K, 4, 4))
+                                             if object_poses is None else object_poses)
+            self.cols["object_ids"].append(np.full((T, self.K), -1, np.int32) if object_ids is None else object_ids)
+        if self.has_smplx:
+            if smplx is None:
+                raise ValueError(f"sequence {name!r}: dataset has SMPL-X parameters but none given")
+            for k, d in SMPLX_FIELDS.items():
+                v = np.asarray(smplx[k], np.float32)
+                self.cols[f"smplx_{k}"].append(np.broadcast_to(v, (T, d)) if v.ndim == 1 else v)
+        for c in self.cols.values():
+            if c.rows != self.frames + T:
+                raise ValueError(f"sequence {name!r}: {c.path.stem} has {c.rows - self.frames} rows, expected {T}")
+        self.sequences.append({"name": name, "start": self.frames, "end": self.frames + T, "scene": int(scene)})
+        self.frames += T
+
+    def finish(self, splits: dict[str, list[int]] | None = None, source: str = "unknown", extra: dict | None = None) -> Path:
+        for c in self.cols.values():
+            c.finish()
+        meta = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "source": source, "fps": self.fps,
+                "units": "m", "up": "y", "num_frames": self.frames, "joint_set": self.joint_set.name,
+                "joint_names": list(self.joint_set.names), "actions": self.actions,
+                "num_object_slots": self.K, "has_smplx": self.has_smplx,
+                "splits": splits or DEFAULT_SPLITS, **(extra or {})}
+        _write_json(self.tmp / "meta.json", meta)
+        _write_json(self.tmp / "sequences.json", self.sequences)
+        _write_json(self.tmp / "scenes.json", {str(k): v for k, v in sorted(self.scenes.items())})
+        _write_json(self.tmp / "objects.json", {str(k): v for k, v in sorted(self.objects.items())})
+        if self.root.exists():
+            old = self.root.with_name(self.root.name + f".old-{os.getpid()}")
+            os.replace(self.root, old)
+            os.replace(self.tmp, self.root)
+            shutil.rmtree(old)
+        else:
+            os.replace(self.tmp, self.root)
+        return self.root
+
+    def abort(self) -> None:
+        for c in self.cols.values():
+            c.f.close()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+
+def _write_json(path: Path, obj) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1))
+    os.replace(tmp, path)
+
+
+# ---------------------------------------------------------------------------------------
+# Reading
+
+
+def _read_json(path: Path, what: str):
+    if not path.is_file():
+        raise DataError(path, None, f"{what} file is missing")
+    try:
+        return json.loads(path.read_text())
+    except ValueError as e:
+        raise DataError(path, None, f"malformed JSON ({e})") from None
+
+
+def _all_finite_chunked(a: np.ndarray, chunk_rows: int = 65536) -> int:
+    """Index of the first row with a non-finite value, or -1. Reads in chunks and drops the
+    pages afterwards so validation of a large memmap does not leave it resident."""
+    for s in range(0, a.shape[0], chunk_rows):
+        block = np.asarray(a[s:s + chunk_rows])
+        bad = ~np.isfinite(block.reshape(block.shape[0], -1)).all(axis=1)
+        if bad.any():
+            return s + int(np.argmax(bad))
+    release(a)
+    return -1
+
+
+def release(a: np.ndarray) -> None:
+    """Drop a memmap's resident pages (they are re-read from the file on demand)."""
+    mm = getattr(a, "_mmap", None)
+    if mm is None and isinstance(getattr(a, "base", None), np.memmap):
+        mm = getattr(a.base, "_mmap", None)
+    if mm is not None and hasattr(mm, "madvise"):
+        import mmap
+        try:
+            mm.madvise(mmap.MADV_DONTNEED)
+        except (OSError, ValueError):
+            pass
+
+
+@dataclass
+class MotionDataset:
+    """An opened, validated dataset. Arrays are read-only memory maps.
+
+    joints (N,J,3) float32 · scene_id (N,) int32 · contact (N,J) bool · actions (N,A) bool ·
+    object_poses (N,K,4,4) float32 / object_ids (N,K) int32 when K > 0 · smplx {field: (N,d)}.
+    """
+
+    root: Path
+    meta: dict
+    sequences: list[Sequence]
+    joints: np.ndarray
+    scene_id: np.ndarray
+    contact: np.ndarray
+    actions: np.ndarray
+    object_poses: np.ndarray | None
+    object_ids: np.ndarray | None
+    smplx: dict[str, np.ndarray] | None
+    scenes: dict[int, dict]
+    objects: dict[int, dict]
+    splits: dict[str, list[int]]
+    _grids: dict = field(default_factory=dict, repr=False)
+    _meshes: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def fps(self) -> float:
+        return float(self.meta["fps"])
+
+    @property
+    def joint_set(self) -> JointSet:
+        return joint_set_for(self.meta["joint_names"])
+
+    @property
+    def action_names(self) -> list[str]:
+        return list(self.meta["actions"])
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.meta["num_frames"])
+
+    def split_of_scene(self, scene: int) -> str | None:
+        for name, ids in self.splits.items():
+            if scene in ids:
+                return name
+        return None
+
+    def split_sequences(self, split: str | None) -> list[Sequence]:
+        """Sequences whose scene belongs to `split` (all sequences for None)."""
+        if split is None:
+            return list(self.sequences)
+        if split not in self.splits:
+            raise DataError(self.root / "meta.json", "splits", f"no split named {split!r}; have {sorted(self.splits)}")
+        ids = set(self.splits[split])
+        return [s for s in self.sequences if s.scene in ids]
+
+    def grid(self, scene: int) -> OccupancyGrid:
+        """The scene's occupancy grid (memory-mapped, cached)."""
+        if scene not in self._grids:
+            entry = self.scenes.get(scene)
+            if entry is None or entry.get("grid") is None:
+                raise DataError(self.root / "scenes.json", str(scene), "scene has no occupancy grid")
+            self._grids[scene] = OccupancyGrid.load(self.root / entry["grid"])
+        return self._grids[scene]
+
+    def scene_mesh(self, scene: int):
+        """The scene's trimesh mesh, or None when the dataset has only a grid."""
+        entry = self.scenes.get(scene) or {}
+        if not entry.get("mesh"):
+            return None
+        if scene not in self._meshes:
+            import trimesh
+            self._meshes[scene] = trimesh.load(self.root / entry["mesh"], force="mesh", process=False)
+        return self._meshes[scene]
+
+    def object_mesh(self, object_id: int):
+        entry = self.objects.get(object_id) or {}
+        if not entry.get("mesh"):
+            return None
+        import trimesh
+        return trimesh.load(self.root / entry["mesh"], force="mesh", process=False)
+
+    @classmethod
+    def open(cls, root: str | Path, splits: dict[str, list[int]] | None = None, check_values: bool = True) -> "MotionDataset":
+        """Open and validate a dataset directory. Raises DataError naming file and field."""
+        root = Path(root)
+        if not root.is_dir():
+            raise DataError(root, None, "dataset directory does not exist")
+        meta_path = root / "meta.json"
+        meta = _read_json(meta_path, "dataset metadata")
+        if not isinstance(meta, dict) or meta.get("format") != FORMAT_NAME:
+            raise DataError(meta_path, "format", f"expected {FORMAT_NAME!r}, found {meta.get('format') if isinstance(meta, dict) else type(meta).__name__!r}")
+        if meta.get("version") != FORMAT_VERSION:
+            raise DataError(meta_path, "version", f"expected {FORMAT_VERSION}, found {meta.get('version')!r}")
+        for key in ("fps", "num_frames", "joint_names", "actions", "num_object_slots", "has_smplx"):
+            if key not in meta:
+                raise DataError(meta_path, key, "required key is missing")
+        if not (isinstance(meta["fps"], (int, float)) and meta["fps"] > 0):
+            raise DataError(meta_path, "fps", f"expected a positive number, found {meta['fps']!r}")
+        try:
+            joint_set_for(meta["joint_names"])
+        except Exception as e:
+            raise DataError(meta_path, "joint_names", str(e)) from None
+        N, J, A, K = int(meta["num_frames"]), len(meta["joint_names"]), len(meta["actions"]), int(meta["num_object_slots"])
+
+        def arr(name: str, shape: tuple, dtype) -> np.ndarray:
+            path = root / f"{name}.npy"
+            a = load_npy(path, name)
+            if a.shape != shape:
+                raise DataError(path, name, f"expected shape {shape}, found {a.shape}")
+            if a.dtype != np.dtype(dtype):
+                raise DataError(path, name, f"expected dtype {np.dtype(dtype)}, found {a.dtype}")
+            if check_values and a.dtype.kind == "f":
+                bad = _all_finite_chunked(a)
+                if bad >= 0:
+                    raise DataError(path, name, f"non-finite value (NaN or inf) at frame {bad}")
+            return a
+
+        joints = arr("joints", (N, J, 3), np.float32)
+        scene_id = arr("scene_id", (N,), np.int32)
+        contact = arr("contact", (N, J), bool)
+        actions = arr("actions", (N, A), bool)
+        object_poses = object_ids = None
+        if K:
+            object_poses = arr("object_poses", (N, K, 4, 4), np.float32)
+            object_ids = arr("object_ids", (N, K), np.int32)
+        smplx = None
+        if meta["has_smplx"]:
+            smplx = {k: arr(f"smplx_{k}", (N, d), np.float32) for k, d in SMPLX_FIELDS.items()}
+
+        seq_path = root / "sequences.json"
+        raw_seqs = _read_json(seq_path, "sequence list")
+        try:
+            sequences = [Sequence(str(s["name"]), int(s["start"]), int(s["end"]), int(s["scene"])) for s in raw_seqs]
+        except (KeyError, TypeError, ValueError) as e:
+            raise DataError(seq_path, None, f"each entry needs name, start, end, scene ({e})") from None
+        pos = 0
+        for s in sequences:
+            if s.start != pos or s.end <= s.start:
+                raise DataError(seq_path, s.name, f"sequences must tile the frames in order: expected start {pos} "
+                                                  f"and end > start, found [{s.start}, {s.end})")
+            pos = s.end
+        if pos != N:
+            raise DataError(seq_path, None, f"sequences cover {pos} frames, meta.json says {N}")
+
+        scenes_path = root / "scenes.json"
+        scenes = {int(k): v for k, v in _read_json(scenes_path, "scene index").items()}
+        objects = {int(k): v for k, v in _read_json(root / "objects.json", "object index").items()}
+        for sid, entry in scenes.items():
+            for key in ("grid", "mesh"):
+                if entry.get(key):
+                    p = root / (entry[key] + (".occ.npy" if key == "grid" else ""))
+                    if not p.is_file():
+                        raise DataError(p, f"scene {sid} {key}", "file listed in scenes.json is missing")
+        for oid, entry in objects.items():
+            if entry.get("mesh") and not (root / entry["mesh"]).is_file():
+                raise DataError(root / entry["mesh"], f"object {oid}", "file listed in objects.json is missing")
+        if check_values:
+            for s in sequences:
+                if s.scene not in scenes:
+                    raise DataError(seq_path, s.name, f"scene id {s.scene} is not in scenes.json")
+                ids = np.asarray(scene_id[s.start:s.end])
+                if not (ids == s.scene).all():
+                    raise DataError(root / "scene_id.npy", "scene_id", f"frames of sequence {s.name!r} do not all "
+                                                                      f"carry its scene id {s.scene}")
+            release(scene_id)
+            if K:
+                bad = _bad_object_id(object_ids, set(objects))
+                if bad is not None:
+                    raise DataError(root / "object_ids.npy", "object_ids", f"object id {bad} is not in objects.json")
+        split_map = splits if splits is not None else meta.get("splits", DEFAULT_SPLITS)
+        split_map = {str(k): [int(i) for i in v] for k, v in split_map.items()}
+        return cls(root, meta, sequences, joints, scene_id, contact, actions, object_poses, object_ids, smplx,
+                   scenes, objects, split_map)
+
+    def iter_sequences(self, split: str | None = None) -> Iterator[tuple[Sequence, np.ndarray]]:
+        for s in self.split_sequences(split):
+            yield s, np.asarray(self.joints[s.start:s.end])
+
+
+def _bad_object_id(ids: np.ndarray, known: set[int]) -> int | None:
+    for s in range(0, ids.shape[0], 262144):
+        u = np.unique(np.asarray(ids[s:s + 262144]))
+        for v in u:
+            if v != -1 and int(v) not in known:
+                return int(v)
+    release(ids)
+    return None
