@@ -1,0 +1,60 @@
+"""Typed configs, registered with Hydra's ConfigStore: every default lives once, in a dataclass.
+
+Groups (see docs/config.md): `model` (tiny | paper | reference, from motiongen.models.PRESETS),
+`diffusion` (default | paper), `data` (synthetic | small | trumans | dataset), `window`,
+`train` (default), plus `experiment` presets in configs/experiment/*.yaml.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from hydra.core.config_store import ConfigStore
+
+from motiongen.data.sources import DataConfig
+from motiongen.data.windows import WindowConfig
+from motiongen.training.config import TrainConfig
+
+
+@dataclass
+class WindowNode:
+    """Hydra-friendly mirror of WindowConfig (lists instead of tuples)."""
+
+    length: int = 16
+    stride: int = 3
+    hop: int = 1
+    scene: bool = True
+    objects: bool = True
+    outside_occupied: bool = True
+    grid_res: list = field(default_factory=lambda: [32, 32, 32])
+    grid_lo: list = field(default_factory=lambda: [-0.6, 0.0, -0.6])
+    grid_hi: list = field(default_factory=lambda: [0.6, 1.2, 0.6])
+
+    def to_window_config(self) -> WindowConfig:
+        return WindowConfig(self.length, self.stride, self.hop, self.scene, self.objects, self.outside_occupied,
+                            tuple(self.grid_res), tuple(self.grid_lo), tuple(self.grid_hi))
+
+
+_registered = False
+
+
+def register_configs() -> None:
+    """Register the structured configs once per process (idempotent)."""
+    global _registered
+    if _registered:
+        return
+    from motiongen.diffusion import DIFFUSION_PRESETS
+    from motiongen.models import PRESETS
+
+    cs = ConfigStore.instance()
+    for name, preset in PRESETS.items():
+        cs.store(group="model", name=name, node=preset)
+    for name, preset in DIFFUSION_PRESETS.items():
+        cs.store(group="diffusion", name=name, node=preset)
+    cs.store(group="data", name="synthetic", node=DataConfig(source="synthetic", size="default"))
+    cs.store(group="data", name="small", node=DataConfig(source="synthetic", size="small"))
+    cs.store(group="data", name="trumans", node=DataConfig(source="trumans"))
+    cs.store(group="data", name="dataset", node=DataConfig(source="dataset"))
+    cs.store(group="window", name="default", node=WindowNode())
+    cs.store(group="train", name="default", node=TrainConfig())
+    _registered = True

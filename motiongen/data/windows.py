@@ -1,0 +1,162 @@
+"""Training windows: canonicalised, normalised joint windows with their conditions.
+
+A window is L frames taken every `stride`-th frame of a sequence (default 16 frames every 3rd
+frame of 30 fps data: 1.6 s at 10 fps). It is expressed in the frame of its first pose
+(pelvis x, z at the origin, yaw 0; see motiongen.geometry) and min–max normalised per channel
+to [-1, 1] with statistics computed once on the train split. Items follow the contract in
+docs/CONTRACTS.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from motiongen.data.format import MotionDataset, release
+from motiongen.errors import ConfigError, DataError
+from motiongen.geometry import canonical_frame, invert_rigid, transform_points
+from motiongen.skeleton import PELVIS
+
+
+@dataclass
+class WindowConfig:
+    length: int = 16          # L frames per window
+    stride: int = 3           # take every stride-th frame (30 fps -> 10 fps)
+    hop: int = 1              # frames between consecutive window starts
+    scene: bool = True        # query the local occupancy at the window goal
+    objects: bool = True      # add dynamic objects to the occupancy query
+    outside_occupied: bool = True
+    # Local grid around the goal, in the window frame: resolution (x, y, z) and extent (m).
+    grid_res: tuple[int, int, int] = (32, 32, 32)
+    grid_lo: tuple[float, float, float] = (-0.6, 0.0, -0.6)
+    grid_hi: tuple[float, float, float] = (0.6, 1.2, 0.6)
+
+    def span(self) -> int:
+        """Frames of the source sequence one window covers."""
+        return (self.length - 1) * self.stride + 1
+
+
+@dataclass
+class NormStats:
+    """Per-channel min–max statistics: x_norm = (x - center) / half_range."""
+
+    center: np.ndarray       # (D,) float32
+    half_range: np.ndarray   # (D,) float32
+
+    def normalize(self, x):
+        c, h = self._as(x)
+        return (x - c) / h
+
+    def denormalize(self, x):
+        c, h = self._as(x)
+        return x * h + c
+
+    def _as(self, x):
+        if isinstance(x, torch.Tensor):
+            return (torch.as_tensor(self.center, dtype=x.dtype, device=x.device),
+                    torch.as_tensor(self.half_range, dtype=x.dtype, device=x.device))
+        return self.center, self.half_range
+
+    def state_dict(self) -> dict:
+        return {"center": self.center.tolist(), "half_range": self.half_range.tolist()}
+
+    @classmethod
+    def from_state_dict(cls, d: dict) -> "NormStats":
+        return cls(np.asarray(d["center"], np.float32), np.asarray(d["half_range"], np.float32))
+
+
+def window_starts(ds: MotionDataset, split: str | None, cfg: WindowConfig) -> np.ndarray:
+    """(W,) int64 absolute start frames of every window lying inside one sequence."""
+    span = cfg.span()
+    starts = [np.arange(s.start, s.end - span + 1, cfg.hop) for s in ds.split_sequences(split) if s.num_frames >= span]
+    return np.concatenate(starts).astype(np.int64) if starts else np.zeros(0, np.int64)
+
+
+def canonicalize(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Express windows (..., L, J, 3) in their first frame. Returns local joints and the
+    (..., 4, 4) local -> world transforms."""
+    T = canonical_frame(joints[..., 0, :, :])
+    return transform_points(invert_rigid(T)[..., None, :, :], joints), T
+
+
+def compute_stats(ds: MotionDataset, cfg: WindowConfig, split: str = "train", min_half_range: float = 1e-2) -> NormStats:
+    """Min–max statistics of canonicalised windows over a split, sequence by sequence so memory
+    stays bounded. Channels that barely vary (the first frame's pelvis x, z are always 0) get
+    `min_half_range` so normalisation never divides by ~0."""
+    J = ds.joint_set.num_joints
+    lo = np.full(J * 3, np.inf)
+    hi = np.full(J * 3, -np.inf)
+    span = cfg.span()
+    for seq in ds.split_sequences(split):
+        if seq.num_frames < span:
+            continue
+        frames = np.asarray(ds.joints[seq.start:seq.end], np.float64)          # (T, J, 3)
+        starts = np.arange(0, seq.num_frames - span + 1, cfg.hop)
+        idx = starts[:, None] + cfg.stride * np.arange(cfg.length)[None]        # (W, L)
+        local, _ = canonicalize(frames[idx])                                    # (W, L, J, 3)
+        flat = local.reshape(-1, J * 3)
+        lo, hi = np.minimum(lo, flat.min(0)), np.maximum(hi, flat.max(0))
+    release(ds.joints)
+    if not np.isfinite(lo).all():
+        raise DataError(ds.root, split, f"no sequence in split {split!r} is long enough for a window of {span} frames")
+    half = np.maximum((hi - lo) / 2, min_half_range)
+    return NormStats(((hi + lo) / 2).astype(np.float32), half.astype(np.float32))
+
+
+def local_grid_points(cfg: WindowConfig) -> np.ndarray:
+    """(Hy, Hx, Hz, 3) query points in the local frame (cell centres), height first."""
+    axes = [lo + (np.arange(n) + 0.5) * (hi - lo) / n for n, lo, hi in zip(cfg.grid_res, cfg.grid_lo, cfg.grid_hi)]
+    x, y, z = np.meshgrid(*axes, indexing="ij")                                  # (Hx, Hy, Hz) each
+    return np.stack([x, y, z], -1).transpose(1, 0, 2, 3)                        # (Hy, Hx, Hz, 3)
+
+
+class WindowDataset(Dataset):
+    """Windows of one split. `stats=None` computes them on the train split of the same dataset."""
+
+    def __init__(self, ds: MotionDataset, split: str | None, cfg: WindowConfig, stats: NormStats | None = None):
+        if cfg.length < 2 or cfg.stride < 1 or cfg.hop < 1:
+            raise ConfigError(f"window length must be >= 2 and stride, hop >= 1 (got {cfg.length}, {cfg.stride}, {cfg.hop})")
+        self.ds, self.split, self.cfg = ds, split, cfg
+        self.starts = window_starts(ds, split, cfg)
+        self.stats = stats if stats is not None else compute_stats(ds, cfg)
+        self._offsets = cfg.stride * np.arange(cfg.length)
+        self._grid_points = local_grid_points(cfg).reshape(-1, 3)                  # (Hy*Hx*Hz, 3)
+        self._scene_query = None                                                   # set lazily (per worker)
+
+    def __len__(self) -> int:
+        return len(self.starts)
+
+    def window_frames(self, i: int) -> np.ndarray:
+        return self.starts[i] + self._offsets
+
+    def __getitem__(self, i: int) -> dict:
+        frames = self.window_frames(i)                                           # (L,)
+        joints = np.asarray(self.ds.joints[frames], np.float64)                  # (L, J, 3)
+        local, T = canonicalize(joints)                                          # (L, J, 3), (4, 4)
+        L, J, _ = local.shape
+        motion = self.stats.normalize(local.reshape(L, J * 3).astype(np.float32))
+        item = {
+            "motion": torch.from_numpy(motion),
+            "actions": torch.from_numpy(np.asarray(self.ds.actions[frames], np.float32)),
+            "goal": torch.from_numpy(local[-1, PELVIS].astype(np.float32)),
+            "to_world": torch.from_numpy(T.astype(np.float32)),
+            "scene_id": torch.tensor(int(self.ds.scene_id[frames[0]]), dtype=torch.long),
+        }
+        if self.cfg.scene:
+            item["scene"] = torch.from_numpy(self._local_scene(frames, local, T))
+        return item
+
+    def _local_scene(self, frames: np.ndarray, local: np.ndarray, T: np.ndarray) -> np.ndarray:
+        """(Hy, Hx, Hz) float32 occupancy around the goal pelvis, axes aligned with the window frame."""
+        from motiongen.data.scene_query import window_occupancy
+        goal = local[-1, PELVIS]
+        return window_occupancy(self.ds, int(self.ds.scene_id[frames[0]]), frames[-1], T, goal,
+                                self._grid_points, self.cfg).reshape(self.cfg.grid_res[1], self.cfg.grid_res[0],
+                                                                     self.cfg.grid_res[2]).astype(np.float32)
+
+
+def window_config_dict(cfg: WindowConfig) -> dict:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()}

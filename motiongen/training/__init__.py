@@ -1,0 +1,1 @@
+"""The training run: loop, checkpoints, EMA, data order, distributed set-up, figures."""

@@ -1,0 +1,30 @@
+"""Validation loss on fixed val batches, fixed timesteps and noise, so curves are comparable."""
+
+from __future__ import annotations
+
+import torch
+from torch.utils.data import DataLoader, Subset
+
+from motiongen.training.builders import batch_condition, known_mask_for_batch
+
+
+@torch.no_grad()
+def validation_loss(model, diffusion, val_set, cfg, tc, device, autocast) -> float:
+    g = torch.Generator().manual_seed(12345)
+    n = min(len(val_set), tc.val_batches * tc.batch_size)
+    idx = torch.randperm(len(val_set), generator=g)[:n].tolist()
+    loader = DataLoader(Subset(val_set, idx), batch_size=tc.batch_size, num_workers=0)
+    gen = torch.Generator(device=device).manual_seed(54321)
+    model.eval()
+    total, count = 0.0, 0
+    for batch in loader:
+        x0 = batch["motion"].to(device)
+        cond = batch_condition(batch, device, tc, gen, train=False)
+        mask = known_mask_for_batch(cfg, x0.shape, x0.shape[-1] // 3, device, gen)
+        t = torch.randint(0, diffusion.num_timesteps, (x0.shape[0],), device=device, generator=gen)
+        noise = torch.randn(x0.shape, device=device, generator=gen)
+        with autocast:
+            losses = diffusion.training_losses(model, x0, t, cond, known=x0, known_mask=mask, noise=noise)
+        total += float(losses["loss"]) * x0.shape[0]
+        count += x0.shape[0]
+    return total / max(count, 1)
