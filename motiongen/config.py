@@ -43,14 +43,20 @@ def register_configs() -> None:
     global _registered
     if _registered:
         return
-    from motiongen.diffusion import DIFFUSION_PRESETS
+    from motiongen.diffusion import DiffusionConfig, MaskConfig
     from motiongen.models import PRESETS
+
+    # paper: linear β 1e-4 → 0.02 over 100 steps (supplement A.2); samplers start from the
+    # marginal that schedule really ends at. default: cosine, which ends at pure noise.
+    diffusion_presets = {"default": DiffusionConfig(),
+                         "paper": DiffusionConfig(schedule="linear", beta_start=1e-4, beta_end=0.02)}
 
     cs = ConfigStore.instance()
     for name, preset in PRESETS.items():
         cs.store(group="model", name=name, node=preset)
-    for name, preset in DIFFUSION_PRESETS.items():
+    for name, preset in diffusion_presets.items():
         cs.store(group="diffusion", name=name, node=preset)
+    cs.store(group="mask", name="default", node=MaskConfig())
     cs.store(group="data", name="synthetic", node=DataConfig(source="synthetic", size="default"))
     cs.store(group="data", name="small", node=DataConfig(source="synthetic", size="small"))
     cs.store(group="data", name="trumans", node=DataConfig(source="trumans"))

@@ -1,0 +1,85 @@
+"""Build the model, diffusion, conditions and masks from a resolved config or a checkpoint."""
+
+from __future__ import annotations
+
+from dataclasses import fields
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from motiongen.config import WindowNode
+from motiongen.data.sources import DataConfig
+from motiongen.data.windows import WindowConfig
+from motiongen.diffusion import DiffusionConfig, GaussianDiffusion
+from motiongen.diffusion.masks import MaskConfig, sample_known_mask
+from motiongen.errors import ConfigError
+from motiongen.models import Condition, ModelConfig, build_model
+from motiongen.models.condition import drop_conditions
+from motiongen.skeleton import JointSet
+
+
+def _dataclass_from(cls, node):
+    d = OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else dict(node)
+    known = {f.name for f in fields(cls)}
+    unknown = set(d) - known
+    if unknown:
+        raise ConfigError(f"unknown {cls.__name__} key(s): {sorted(unknown)}")
+    return cls(**d)
+
+
+def data_config(cfg) -> DataConfig:
+    return _dataclass_from(DataConfig, cfg.data)
+
+
+def window_config(cfg) -> WindowConfig:
+    return _dataclass_from(WindowNode, cfg.window).to_window_config()
+
+
+def mask_config(cfg) -> MaskConfig:
+    return _dataclass_from(MaskConfig, cfg.mask)
+
+
+def build_from_config(cfg, joint_set: JointSet, action_names: list[str]):
+    """(model, diffusion, checkpoint metadata) for a run config."""
+    mcfg = _dataclass_from(ModelConfig, cfg.model)
+    dcfg = _dataclass_from(DiffusionConfig, cfg.diffusion)
+    w = window_config(cfg)
+    model = build_model(mcfg, num_joints=joint_set.num_joints, num_actions=len(action_names), window=w.length,
+                        scene_res=(w.grid_res[1], w.grid_res[0], w.grid_res[2]))
+    meta = {"joint_names": list(joint_set.names), "action_names": list(action_names),
+            "model_config": OmegaConf.to_container(OmegaConf.structured(mcfg)),
+            "diffusion_config": OmegaConf.to_container(OmegaConf.structured(dcfg))}
+    return model, GaussianDiffusion(dcfg), meta
+
+
+def batch_condition(batch: dict, device, tc, generator, train: bool) -> Condition:
+    cond = Condition(scene=batch["scene"].to(device, non_blocking=True) if "scene" in batch else None,
+                     actions=batch["actions"].to(device, non_blocking=True))
+    if train and (tc.cond_drop_scene > 0 or tc.cond_drop_actions > 0):
+        cond = drop_conditions(cond, tc.cond_drop_scene, tc.cond_drop_actions, generator)
+    return cond
+
+
+def known_mask_for_batch(cfg, shape, num_joints: int, device, generator) -> torch.Tensor:
+    B, L, _ = shape
+    return sample_known_mask(B, L, num_joints, mask_config(cfg), generator).to(device)
+
+
+def fixed_known_mask(shape, transition: int, goal: bool, device) -> torch.Tensor:
+    """The sampling-time mask: the first `transition` frames and the last-frame pelvis x, z."""
+    m = torch.zeros(shape, dtype=torch.bool, device=device)
+    m[:, :transition] = True
+    if goal:
+        m[:, -1, [0, 2]] = True
+    return m
+
+
+@torch.no_grad()
+def sample_windows(model, diffusion, batch: dict, cfg, device, generator, steps: int = 25) -> torch.Tensor:
+    """Sample windows for a batch, pinning its first 2 frames and its goal (as sampling does)."""
+    x0 = batch["motion"].to(device)
+    cond = Condition(scene=batch["scene"].to(device) if "scene" in batch else None, actions=batch["actions"].to(device))
+    mask = fixed_known_mask(x0.shape, 2, True, device)
+    model.eval()
+    return diffusion.sample(model, x0.shape, cond, known=x0, known_mask=mask, sampler="ddim",
+                            steps=min(steps, diffusion.num_timesteps), generator=generator)
