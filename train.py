@@ -28,8 +28,7 @@ def main(cfg: DictConfig) -> None:
     from motiongen.training.trainer import train
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     last = train(cfg, run_dir)
-    import torch.distributed as dist
-    if not dist.is_available() or not dist.is_initialized() or dist.get_rank() == 0:
+    if last is not None:
         print(f"checkpoint: {last}\ntensorboard: tensorboard --logdir {run_dir / 'tb'}", flush=True)
 
 

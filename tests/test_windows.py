@@ -77,15 +77,43 @@ def test_local_scene_matches_brute_force(tmp_path):
 
 
 def test_obstacle_appears_in_front(tmp_path):
-    """A body standing 0.3 m in front of (facing) the obstacle sees it in the local +z half."""
-    from motiongen.data.scene_query import window_occupancy
-    from motiongen.data.windows import local_grid_points
+    """A window whose goal stands 0.3 m in front of (facing) the obstacle sees it in local +z."""
+    from motiongen.data.scene import local_occupancy_np
     from motiongen.geometry import local_to_world
     ds = _ds(tmp_path)
-    cfg = WindowConfig()
+    wd = WindowDataset(ds, "train", WindowConfig())
     T = local_to_world(np.array(0.0), np.array([1.0, 0.5]))        # at (1, 0.5) facing +z: box at z 0.8..1.2
-    occ = window_occupancy(ds, 1, 0, T, np.zeros(3), local_grid_points(cfg).reshape(-1, 3), cfg).reshape(32, 32, 32)
-    low = occ[:10]                                                   # heights below 0.375 m
+    low = local_occupancy_np(ds.grid(1), T, wd.spec)[:10]          # heights below 0.375 m: (10, Hx, Hz)
     # box x in [0.8, 1.2) -> local x in [-0.2, 0.2): cells 11..20; z in [0.8, 1.2) -> local z 0.3..0.6: cells 24..31
     assert low[:, 11:21, 25:32].all()
     assert low[:, :10, :].sum() == 0 and low[:, 22:, :].sum() == 0 and low[:, :, :24].sum() == 0
+
+
+def test_dynamic_object_enters_the_local_grid(tmp_path):
+    """An object slot posed at the goal shows up in the window's occupancy."""
+    import trimesh
+    from motiongen.data.format import DatasetWriter
+    from motiongen.data.occupancy import OccupancyGrid
+    from motiongen.skeleton import BODY
+    from tests.helpers import walking_sequence
+    w = DatasetWriter(tmp_path / "obj", BODY, ["walk"], 30.0, num_object_slots=1)
+    w.add_scene(1, grid=OccupancyGrid.from_dense(np.zeros((200, 100, 200), bool), [-2.0, 0, -2.0], 0.02))
+    w.add_object(0, name="crate", type="box", mesh=trimesh.creation.box([0.2, 0.2, 0.2]))
+    j = walking_sequence(60, [0.0, -1.5], 0.0, 0.0, 1.0)            # walks along +z, well inside the grid
+    poses = np.tile(np.eye(4, dtype=np.float32), (60, 1, 1, 1))
+    poses[:, 0, :3, 3] = j[45, 0] * [1, 0, 1] + [0, 0.5, 0.3]       # crate 0.3 m ahead of the goal (frame 45) pelvis
+    ids = np.zeros((60, 1), np.int32)
+    w.add_sequence("a", 1, j, np.ones((60, 1), bool), np.zeros((60, 22), bool), object_poses=poses, object_ids=ids)
+    w.finish(splits={"train": [1]})
+    ds = MotionDataset.open(tmp_path / "obj")
+    wd = WindowDataset(ds, "train", WindowConfig(hop=100))
+    item = wd[0]
+    occ = item["scene"].numpy()                                     # (Hy, Hx, Hz)
+    goal = item["goal"].numpy()
+    assert occ.sum() > 0
+    ys, xs, zs = np.nonzero(occ)
+    cell = 1.2 / 32
+    # occupied cells sit 0.3 m ahead of the goal (local z) at heights 0.4..0.6 m
+    assert abs((zs.mean() + 0.5) * cell - 0.6 - 0.3) < 0.05 and abs((ys.mean() + 0.5) * cell - 0.5) < 0.05
+    no_obj = WindowDataset(ds, "train", WindowConfig(hop=100, objects=False), wd.stats)
+    assert no_obj[0]["scene"].sum() == 0

@@ -88,13 +88,17 @@ class DatasetWriter:
         self.root = Path(root)
         if self.root.exists() and not overwrite:
             raise DataError(self.root, None, "dataset directory already exists (pass overwrite)")
+        if self.root.exists() and not _is_dataset_or_empty(self.root):
+            # overwrite deletes `root`: never do that to something that is not ours
+            raise DataError(self.root, None, "refusing to overwrite: not a dataset directory (no meta.json) "
+                                             "and not empty")
         self.tmp = self.root.with_name(self.root.name + f".partial-{os.getpid()}")
         if self.tmp.exists():
             shutil.rmtree(self.tmp)
         (self.tmp / "scenes").mkdir(parents=True)
         (self.tmp / "objects").mkdir()
         self.joint_set, self.actions, self.fps = joint_set, list(actions), float(fps)
-        self.K, self.has_smplx, self.overwrite = int(num_object_slots), has_smplx, overwrite
+        self.K, self.has_smplx, self.overwrite = int(num_object_slots), bool(has_smplx), overwrite
         J, A, K = joint_set.num_joints, len(self.actions), self.K
         col = lambda name, shape, dt: _RawColumn(self.tmp / f"{name}.npy", shape, dt)  # noqa: E731
         self.cols = {"joints": col("joints", (J, 3), np.float32), "scene_id": col("scene_id", (), np.int32),
@@ -172,7 +176,11 @@ class DatasetWriter:
         if self.root.exists():
             old = self.root.with_name(self.root.name + f".old-{os.getpid()}")
             os.replace(self.root, old)
-            os.replace(self.tmp, self.root)
+            try:
+                os.replace(self.tmp, self.root)
+            except BaseException:
+                os.replace(old, self.root)   # put the old dataset back rather than leave none
+                raise
             shutil.rmtree(old)
         else:
             os.replace(self.tmp, self.root)
@@ -182,6 +190,10 @@ class DatasetWriter:
         for c in self.cols.values():
             c.f.close()
         shutil.rmtree(self.tmp, ignore_errors=True)
+
+
+def _is_dataset_or_empty(path: Path) -> bool:
+    return path.is_dir() and ((path / "meta.json").is_file() or not any(path.iterdir()))
 
 
 def _write_json(path: Path, obj) -> None:
@@ -201,6 +213,23 @@ def _read_json(path: Path, what: str):
         return json.loads(path.read_text())
     except ValueError as e:
         raise DataError(path, None, f"malformed JSON ({e})") from None
+
+
+def _read_index(path: Path, what: str) -> dict[int, dict]:
+    """scenes.json / objects.json: {"<int id>": {...}} -> {id: entry}."""
+    raw = _read_json(path, what)
+    if not isinstance(raw, dict):
+        raise DataError(path, None, f"expected an object mapping ids to entries, found {type(raw).__name__}")
+    out = {}
+    for k, v in raw.items():
+        try:
+            i = int(k)
+        except ValueError:
+            raise DataError(path, k, "expected an integer id as the key") from None
+        if not isinstance(v, dict):
+            raise DataError(path, k, f"expected an object entry, found {v!r:.60}")
+        out[i] = v
+    return out
 
 
 def _all_finite_chunked(a: np.ndarray, chunk_rows: int = 65536) -> int:
@@ -330,7 +359,14 @@ class MotionDataset:
             joint_set_for(meta["joint_names"])
         except Exception as e:
             raise DataError(meta_path, "joint_names", str(e)) from None
-        N, J, A, K = int(meta["num_frames"]), len(meta["joint_names"]), len(meta["actions"]), int(meta["num_object_slots"])
+        for key in ("num_frames", "num_object_slots"):
+            if not (isinstance(meta[key], int) and not isinstance(meta[key], bool) and meta[key] >= 0):
+                raise DataError(meta_path, key, f"expected a non-negative integer, found {meta[key]!r}")
+        if not isinstance(meta["has_smplx"], bool):
+            raise DataError(meta_path, "has_smplx", f"expected true or false, found {meta['has_smplx']!r}")
+        if not (isinstance(meta["actions"], list) and all(isinstance(a, str) for a in meta["actions"])):
+            raise DataError(meta_path, "actions", f"expected a list of strings, found {meta['actions']!r}")
+        N, J, A, K = meta["num_frames"], len(meta["joint_names"]), len(meta["actions"]), meta["num_object_slots"]
 
         def arr(name: str, shape: tuple, dtype) -> np.ndarray:
             path = root / f"{name}.npy"
@@ -373,14 +409,16 @@ class MotionDataset:
             raise DataError(seq_path, None, f"sequences cover {pos} frames, meta.json says {N}")
 
         scenes_path = root / "scenes.json"
-        scenes = {int(k): v for k, v in _read_json(scenes_path, "scene index").items()}
-        objects = {int(k): v for k, v in _read_json(root / "objects.json", "object index").items()}
+        scenes = _read_index(scenes_path, "scene index")
+        objects = _read_index(root / "objects.json", "object index")
         for sid, entry in scenes.items():
             for key in ("grid", "mesh"):
                 if entry.get(key):
-                    p = root / (entry[key] + (".occ.npy" if key == "grid" else ""))
-                    if not p.is_file():
-                        raise DataError(p, f"scene {sid} {key}", "file listed in scenes.json is missing")
+                    # a grid is two files (<stem>.occ.npy + .occ.json); both must be there
+                    for suffix in ((".occ.npy", ".occ.json") if key == "grid" else ("",)):
+                        p = root / (entry[key] + suffix)
+                        if not p.is_file():
+                            raise DataError(p, f"scene {sid} {key}", "file listed in scenes.json is missing")
         for oid, entry in objects.items():
             if entry.get("mesh") and not (root / entry["mesh"]).is_file():
                 raise DataError(root / entry["mesh"], f"object {oid}", "file listed in objects.json is missing")
@@ -390,7 +428,9 @@ class MotionDataset:
                     raise DataError(seq_path, s.name, f"scene id {s.scene} is not in scenes.json")
                 ids = np.asarray(scene_id[s.start:s.end])
                 if not (ids == s.scene).all():
-                    raise DataError(root / "scene_id.npy", "scene_id", f"frames of sequence {s.name!r} do not all "
+                    n = s.start + int(np.argmax(ids != s.scene))
+                    raise DataError(root / "scene_id.npy", "scene_id", f"frame {n} has scene id {int(scene_id[n])}, "
+                                                                      f"but frames of sequence {s.name!r} must all "
                                                                       f"carry its scene id {s.scene}")
             release(scene_id)
             if K:
@@ -398,7 +438,11 @@ class MotionDataset:
                 if bad is not None:
                     raise DataError(root / "object_ids.npy", "object_ids", f"object id {bad} is not in objects.json")
         split_map = splits if splits is not None else meta.get("splits", DEFAULT_SPLITS)
-        split_map = {str(k): [int(i) for i in v] for k, v in split_map.items()}
+        try:
+            split_map = {str(k): [int(i) for i in v] for k, v in split_map.items()}
+        except (AttributeError, TypeError, ValueError):
+            raise DataError(meta_path if splits is None else "splits argument", "splits", f"expected an object of split name -> list of scene ids, "
+                                                 f"found {split_map!r:.80}") from None
         return cls(root, meta, sequences, joints, scene_id, contact, actions, object_poses, object_ids, smplx,
                    scenes, objects, split_map)
 

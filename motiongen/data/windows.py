@@ -106,13 +106,6 @@ def compute_stats(ds: MotionDataset, cfg: WindowConfig, split: str = "train", mi
     return NormStats(((hi + lo) / 2).astype(np.float32), half.astype(np.float32))
 
 
-def local_grid_points(cfg: WindowConfig) -> np.ndarray:
-    """(Hy, Hx, Hz, 3) query points in the local frame (cell centres), height first."""
-    axes = [lo + (np.arange(n) + 0.5) * (hi - lo) / n for n, lo, hi in zip(cfg.grid_res, cfg.grid_lo, cfg.grid_hi)]
-    x, y, z = np.meshgrid(*axes, indexing="ij")                                  # (Hx, Hy, Hz) each
-    return np.stack([x, y, z], -1).transpose(1, 0, 2, 3)                        # (Hy, Hx, Hz, 3)
-
-
 class WindowDataset(Dataset):
     """Windows of one split. `stats=None` computes them on the train split of the same dataset."""
 
@@ -123,8 +116,10 @@ class WindowDataset(Dataset):
         self.starts = window_starts(ds, split, cfg)
         self.stats = stats if stats is not None else compute_stats(ds, cfg)
         self._offsets = cfg.stride * np.arange(cfg.length)
-        self._grid_points = local_grid_points(cfg).reshape(-1, 3)                  # (Hy*Hx*Hz, 3)
-        self._scene_query = None                                                   # set lazily (per worker)
+        from motiongen.data.scene import LocalGridSpec
+        self.spec = LocalGridSpec(tuple(cfg.grid_res), (cfg.grid_lo[0], cfg.grid_hi[0]),
+                                  (cfg.grid_lo[1], cfg.grid_hi[1]), (cfg.grid_lo[2], cfg.grid_hi[2]))
+        self._object_grids: dict[int, object] = {}                                  # object id -> grid (per worker)
 
     def __len__(self) -> int:
         return len(self.starts)
@@ -150,12 +145,38 @@ class WindowDataset(Dataset):
         return item
 
     def _local_scene(self, frames: np.ndarray, local: np.ndarray, T: np.ndarray) -> np.ndarray:
-        """(Hy, Hx, Hz) float32 occupancy around the goal pelvis, axes aligned with the window frame."""
-        from motiongen.data.scene_query import window_occupancy
+        """(Hy, Hx, Hz) float32 occupancy around the goal pelvis, axes aligned with the window
+        frame, with the objects present at the goal frame added. Height counts from the floor."""
+        from motiongen.data.scene import local_occupancy_np
         goal = local[-1, PELVIS]
-        return window_occupancy(self.ds, int(self.ds.scene_id[frames[0]]), frames[-1], T, goal,
-                                self._grid_points, self.cfg).reshape(self.cfg.grid_res[1], self.cfg.grid_res[0],
-                                                                     self.cfg.grid_res[2]).astype(np.float32)
+        at_goal = T.copy()
+        at_goal[:3, 3] = T[:3, :3] @ np.array([goal[0], 0.0, goal[2]]) + T[:3, 3]        # goal (x, 0, z) in world
+        objects = self._objects_at(int(frames[-1])) if self.cfg.objects else []
+        occ = local_occupancy_np(self.ds.grid(int(self.ds.scene_id[frames[0]])), at_goal, self.spec, objects,
+                                 outside=self.cfg.outside_occupied)
+        return occ.astype(np.float32)
+
+    def _objects_at(self, frame: int) -> list:
+        """[(object grid, pose (4, 4) object -> world)] for the objects present at `frame`."""
+        if self.ds.object_ids is None:
+            return []
+        out = []
+        for slot, oid in enumerate(np.asarray(self.ds.object_ids[frame])):
+            if oid < 0:
+                continue
+            if oid not in self._object_grids:
+                self._object_grids[oid] = self._voxelize_object(int(oid))
+            if self._object_grids[oid] is not None:
+                out.append((self._object_grids[oid], np.asarray(self.ds.object_poses[frame, slot], np.float64)))
+        return out
+
+    def _voxelize_object(self, oid: int):
+        from motiongen.data.voxelize import voxelize_mesh
+        mesh = self.ds.object_mesh(oid)
+        if mesh is None:
+            return None
+        vs = self.ds.grid(self.ds.sequences[0].scene).voxel_size
+        return voxelize_mesh(mesh, voxel_size=vs)
 
 
 def window_config_dict(cfg: WindowConfig) -> dict:

@@ -73,8 +73,8 @@ def _set_rng_state(s: dict, gen: torch.Generator) -> None:
         torch.cuda.set_rng_state_all(s["cuda"])
 
 
-def train(cfg: DictConfig, run_dir: Path) -> Path:
-    """Train per `cfg` in `run_dir`; returns the path of the last checkpoint."""
+def train(cfg: DictConfig, run_dir: Path) -> Path | None:
+    """Train per `cfg` in `run_dir`; returns the last checkpoint's path on rank 0, None elsewhere."""
     tc = TrainConfig(**OmegaConf.to_container(cfg.train, resolve=True))
     device = resolve_device(tc.device)
     info = dd.init_distributed(device.type)
@@ -242,4 +242,4 @@ def train(cfg: DictConfig, run_dir: Path) -> Path:
         writer.close()
     dd.barrier(info)
     dd.shutdown(info)
-    return run_dir / "checkpoints" / "last.pt"
+    return run_dir / "checkpoints" / "last.pt" if info.is_main else None

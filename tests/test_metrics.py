@@ -1,0 +1,215 @@
+"""Metrics on hand-made motions with known answers."""
+
+import numpy as np
+import pytest
+
+from motiongen.data.occupancy import OccupancyGrid
+from motiongen.eval.metrics import (SignedDistance, apd, contact_rate, floor_penetration, foot_skating_ratio,
+                                    goal_distances, goal_success, mean_jerk, pskl, scene_penetration, seam_jump,
+                                    trajectory_fail_rate)
+from motiongen.skeleton import FOOT_JOINTS, PELVIS
+
+FPS = 30.0
+TOES = (10, 11)
+
+
+def still(T=31, J=22, y=1.0):
+    """(T, J, 3): every joint at height y, not moving."""
+    j = np.zeros((T, J, 3))
+    j[..., 1] = y
+    return j
+
+
+def with_feet(j, y, vx, frames=None):
+    """Put both toe joints at height y, sliding along x at vx m/s over `frames` transitions."""
+    T = len(j)
+    steps = np.zeros(T - 1)
+    steps[slice(None) if frames is None else frames] = vx / FPS
+    x = np.concatenate([[0.0], np.cumsum(steps)])
+    for k in TOES:
+        j[:, k, 1], j[:, k, 0] = y, x
+    return j
+
+
+# --- foot skating ------------------------------------------------------------------------
+
+def test_skating_planted_feet_is_zero():
+    assert foot_skating_ratio(with_feet(still(), 0.02, 0.0), FPS) == 0.0
+
+
+def test_skating_sliding_on_floor_is_one():
+    assert foot_skating_ratio(with_feet(still(), 0.02, 1.0), FPS) == 1.0
+
+
+def test_skating_needs_both_height_and_speed():
+    assert foot_skating_ratio(with_feet(still(), 0.10, 1.0), FPS) == 0.0   # swinging foot, above 5 cm
+    assert foot_skating_ratio(with_feet(still(), 0.02, 0.4), FPS) == 0.0   # slow creep under 0.5 m/s
+
+
+def test_skating_half_clip():
+    # 15 of 30 transitions slide at 1 m/s; the last sliding transition's 5-frame average is
+    # 3/5 = 0.6 m/s > 0.5, so all 15 count.
+    j = with_feet(still(T=31), 0.02, 1.0, frames=slice(0, 15))
+    assert foot_skating_ratio(j, FPS) == pytest.approx(0.5)
+
+
+def test_skating_single_spike_is_averaged_away():
+    # one transition at 2 m/s: its window average is 2/5 = 0.4 m/s < 0.5
+    j = with_feet(still(T=31), 0.02, 2.0, frames=slice(10, 11))
+    assert foot_skating_ratio(j, FPS) == 0.0
+    assert foot_skating_ratio(j, FPS, window=1) == pytest.approx(1 / 30)
+
+
+def test_skating_foot_joint_choice():
+    j = still()
+    j[:, 7, 1] = 0.02                                  # left ankle low and sliding, toes high
+    j[:, 7, 0] = np.arange(len(j)) / FPS
+    assert foot_skating_ratio(j, FPS) == 0.0           # default: toes only (GMD)
+    assert foot_skating_ratio(j, FPS, foot_joints=FOOT_JOINTS) == 1.0
+
+
+# --- goals -------------------------------------------------------------------------------
+
+def line_walk(T=31):
+    j = still(T)
+    j[:, PELVIS, 0] = np.linspace(0, 3, T)             # pelvis along x from 0 to 3 m
+    return j
+
+
+def test_goal_distances_in_order():
+    d = goal_distances(line_walk(), [[1, 0.1], [2, -0.3], [3, 0.0]])
+    np.testing.assert_allclose(d, [0.1, 0.3, 0.0], atol=1e-12)
+
+
+def test_goal_distances_order_matters_and_3d_goals():
+    # after reaching (3, 0) at the last frame, the goal at x=1 is 2 m behind
+    d = goal_distances(line_walk(), np.array([[3, 5.0, 0], [1, 5.0, 0]]))
+    np.testing.assert_allclose(d, [0.0, 2.0], atol=1e-12)
+
+
+def test_goal_distances_arrival_frames():
+    np.testing.assert_allclose(goal_distances(line_walk(), [[1, 0], [3, 0]], arrival_frames=[0, 30]), [1.0, 0.0])
+
+
+def test_goal_success_and_fail_rate():
+    assert goal_success(np.array([0.1, 0.3, 0.6])) == pytest.approx({0.2: 1 / 3, 0.5: 2 / 3})
+    assert goal_success([np.array([0.1]), np.array([0.3, 0.6])], thresholds=(0.5,)) == pytest.approx({0.5: 2 / 3})
+    assert trajectory_fail_rate([np.array([0.1, 0.2]), np.array([0.1, 0.6])], threshold=0.5) == 0.5
+
+
+# --- penetration and contact ---------------------------------------------------------------
+
+def box_grid(top=0.5):
+    """2 cm grid over [0, 2]^3 m; a solid box x, z in [0.5, 1.5], y in [0, top]."""
+    vs = 0.02
+    occ = np.zeros((100, 100, 100), bool)
+    occ[25:75, :int(round(top / vs)), 25:75] = True
+    return OccupancyGrid.from_dense(occ, origin=[0, 0, 0], voxel_size=vs)
+
+
+def test_signed_distance_box():
+    sdf = SignedDistance(box_grid())
+    d = sdf(np.array([[1.0, 0.7, 1.0], [1.0, 0.4, 1.0], [1.0, 0.3, 0.6], [0.2, 0.3, 1.0]]))
+    np.testing.assert_allclose(d, [0.2, -0.1, -0.1, 0.3], atol=0.011)
+    # outside the grid: free, distance grows with the distance to the grid box
+    assert sdf(np.array([[1.0, 2.5, 1.0]]))[0] == pytest.approx(2.0, abs=0.02)
+    assert SignedDistance(box_grid(), floor_y=0.0)(np.array([[0.2, 0.05, 0.2]]))[0] == pytest.approx(0.05)
+
+
+def test_scene_penetration_depth_and_ratio():
+    j = still(T=4, J=22, y=1.8)
+    j[0, 3] = [1.0, 0.4, 1.0]                          # 10 cm deep in frame 0
+    j[1, 5] = [1.0, 0.45, 1.0]                         # 5 cm deep in frame 1
+    r = scene_penetration(j, box_grid())
+    assert r["frame_ratio"] == 0.5
+    assert r["mean_depth"] == pytest.approx(0.075, abs=0.011)
+    assert r["max_depth"] == pytest.approx(0.10, abs=0.011)
+    v = np.full((4, 5, 3), 1.8)
+    v[3, 2] = [1.0, 0.3, 1.0]                          # a vertex 20 cm deep in frame 3
+    assert scene_penetration(j, box_grid(), vertices=v)["frame_ratio"] == 0.75
+    assert scene_penetration(still(4), box_grid())["frame_ratio"] == 0.0
+
+
+def test_floor_penetration():
+    j = still(T=4, y=0.5)
+    j[1, 0, 1] = -0.03
+    j[2, 4, 1] = -0.01
+    r = floor_penetration(j)
+    assert r["frame_ratio"] == 0.5
+    assert r["mean_depth"] == pytest.approx(0.02) and r["max_depth"] == pytest.approx(0.03)
+    assert floor_penetration(j, tol=0.02)["frame_ratio"] == 0.25
+
+
+def test_contact_rate_sit():
+    grid = box_grid(top=0.44)                          # a seat top at y = 0.44
+    j = still(T=4, y=1.5)
+    j[:, PELVIS] = [[1.0, 0.55, 1.0], [1.0, 0.55, 1.0], [1.0, 0.9, 1.0], [1.0, 0.55, 1.0]]
+    actions = np.array([[1, 0], [1, 0], [1, 0], [0, 1]], bool)      # frame 3 labelled "walk"
+    r = contact_rate(j, actions, ["sit", "walk"], grid)
+    # pelvis 11 cm above the seat, less its 10 cm skin offset: touching; 46 cm: not
+    assert r == pytest.approx({"sit": 2 / 3, "all": 2 / 3})
+    assert contact_rate(j, actions, ["sit", "walk"], grid, skin_offset={})["sit"] == 0.0
+
+
+# --- diversity and smoothness ------------------------------------------------------------
+
+def test_apd():
+    base = np.random.default_rng(0).normal(size=(10, 22, 3))
+    s = np.stack([base, base + 0.1, base + 0.3])        # pairwise norms 0.1, 0.3, 0.2 times sqrt(660)
+    assert apd(s) == pytest.approx(0.2 * np.sqrt(10 * 22 * 3))
+    with pytest.raises(ValueError):
+        apd(s[:1])
+
+
+def test_mean_jerk_of_cubic_is_exact():
+    t = np.arange(20) / FPS
+    j = np.zeros((20, 22, 3))
+    j[..., 0] = (2.0 * t ** 3)[:, None]                 # jerk = 6 * 2 = 12 m/s^3
+    assert mean_jerk(j, FPS) == pytest.approx(12.0)
+    j[..., 0] = (0.5 * t ** 2)[:, None]
+    assert mean_jerk(j, FPS) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_seam_jump():
+    j = still(T=30)
+    x = np.arange(30) * 0.01
+    x[20:] += 0.09                                      # episode 2 starts at frame 20, 9 cm off
+    j[..., 0] = x[:, None]
+    s = seam_jump(j, [20])
+    assert s.seam == pytest.approx(0.10) and s.elsewhere == pytest.approx(0.01)
+    assert s.ratio == pytest.approx(10.0)
+
+
+# --- PSKL ----------------------------------------------------------------------------------
+
+def pskl_reference(A, B):
+    """Eqs. 10-11 spelled out with loops over features and frequencies."""
+    def spectra(S):
+        F = S[0][2:].size // (len(S[0]) - 2)
+        out = []
+        for f in range(F):
+            ps = np.mean([np.abs(np.fft.fft(np.diff(m.reshape(len(m), -1)[:, f], n=2))) ** 2 for m in S], axis=0)
+            out.append(ps / ps.sum())
+        return out
+    pa, pb = spectra(A), spectra(B)
+    return np.mean([sum(p[e] * np.log(p[e] / q[e]) for e in range(len(p))) for p, q in zip(pa, pb)])
+
+
+def test_pskl_matches_the_formula_and_is_asymmetric():
+    rng = np.random.default_rng(1)
+    t = np.arange(40)[:, None, None]
+    A = [np.sin(0.3 * t + rng.normal(size=(1, 2, 3))) + 0.1 * rng.normal(size=(40, 2, 3)) for _ in range(3)]
+    B = [np.cumsum(rng.normal(size=(40, 2, 3)), axis=0) for _ in range(4)]
+    ab, ba = pskl(A, B, FPS, eps=0)
+    assert ab == pytest.approx(pskl_reference(A, B), rel=1e-9)
+    assert ba == pytest.approx(pskl_reference(B, A), rel=1e-9)
+    assert ab > 0 and ba > 0 and abs(ab - ba) > 1e-3
+
+
+def test_pskl_zero_for_same_spectrum_and_scale_free():
+    rng = np.random.default_rng(2)
+    A = rng.normal(size=(3, 32, 22, 3))
+    assert pskl(A, A, FPS) == pytest.approx((0.0, 0.0), abs=1e-12)
+    assert pskl(A, 3.0 * A, FPS) == pytest.approx((0.0, 0.0), abs=1e-9)   # normalised spectra
+    # different lengths: cut to the shortest
+    assert pskl(list(A), [A[0][:20]], FPS)[0] >= 0
