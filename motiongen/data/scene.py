@@ -362,11 +362,20 @@ def local_occupancy_np(grid: OccupancyGrid, to_world: np.ndarray, spec: LocalGri
     else:
         world = local @ T[:3, :3].T + T[:3, 3]                                           # (Hy, Hx, Hz, 3)
         occ = grid.occupied(world, outside=outside)
+    if len(objects):
+        world = local @ T[:3, :3].T + T[:3, 3] if world is None else world                 # (Hy, Hx, Hz, 3)
+        lo, hi = world.reshape(-1, 3).min(0), world.reshape(-1, 3).max(0)
     for obj, pose in objects:
-        if world is None:
-            world = local @ T[:3, :3].T + T[:3, 3]
-        inv = invert_rigid(np.asarray(pose, np.float64))
-        occ |= obj.occupied(world @ inv[:3, :3].T + inv[:3, 3], outside=False)
+        pose = np.asarray(pose, np.float64)
+        corners = np.stack(np.meshgrid(*obj.bounds.T, indexing="ij"), -1).reshape(-1, 3)   # (8, 3) object frame
+        wc = corners @ pose[:3, :3].T + pose[:3, 3]
+        o_lo, o_hi = wc.min(0), wc.max(0)
+        if np.any(o_hi < lo) or np.any(o_lo > hi):
+            continue                       # small objects are usually nowhere near the window goal
+        near = np.all((world >= o_lo) & (world <= o_hi), axis=-1)                       # (Hy, Hx, Hz)
+        inv = invert_rigid(pose)
+        p = world[near]
+        occ[near] |= obj.occupied(p @ inv[:3, :3].T + inv[:3, 3], outside=False)
     return occ
 
 

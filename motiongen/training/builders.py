@@ -83,3 +83,41 @@ def sample_windows(model, diffusion, batch: dict, cfg, device, generator, steps:
     model.eval()
     return diffusion.sample(model, x0.shape, cond, known=x0, known_mask=mask, sampler="ddim",
                             steps=min(steps, diffusion.num_timesteps), generator=generator)
+
+
+class LoadedModel:
+    """Everything a tool needs from a checkpoint alone: the EMA denoiser (eval mode), the
+    diffusion, normalisation statistics, joint set, action vocabulary and window config."""
+
+    def __init__(self, state: dict, device, use_ema: bool = True):
+        from motiongen.data.windows import NormStats
+        from motiongen.skeleton import joint_set_for
+        from omegaconf import OmegaConf as OC
+
+        cfg = OC.create(state["config"])
+        self.config = cfg
+        self.step = int(state["step"])
+        self.joint_set = joint_set_for(state["joint_names"])
+        self.action_names = list(state["action_names"])
+        self.stats = NormStats.from_state_dict(state["stats"])
+        self.window = window_config(cfg)
+        self.mask = mask_config(cfg)
+        model, self.diffusion, _ = build_from_config(cfg, self.joint_set, self.action_names)
+        try:
+            model.load_state_dict(state["ema" if use_ema else "model"])
+        except RuntimeError as e:
+            raise ConfigError(f"checkpoint weights do not match its own config: {str(e).splitlines()[0]}") from None
+        self.model = model.to(device).eval().requires_grad_(False)
+        self.device = torch.device(device)
+
+
+def load_model(path, device="cpu", use_ema: bool = True) -> LoadedModel:
+    """Rebuild a trained model from a checkpoint file (config and statistics inside it)."""
+    from motiongen.training.checkpoint import load_checkpoint
+
+    state = load_checkpoint(path, map_location="cpu")
+    missing = [k for k in ("config", "stats", "joint_names", "action_names", "ema", "model") if k not in state]
+    if missing:
+        from motiongen.errors import MotiongenError
+        raise MotiongenError(f"{path}: incompatible checkpoint, missing {missing}")
+    return LoadedModel(state, device, use_ema)
