@@ -363,8 +363,10 @@ def local_occupancy_np(grid: OccupancyGrid, to_world: np.ndarray, spec: LocalGri
         world = local @ T[:3, :3].T + T[:3, 3]                                           # (Hy, Hx, Hz, 3)
         occ = grid.occupied(world, outside=outside)
     if len(objects):
-        world = local @ T[:3, :3].T + T[:3, 3] if world is None else world                 # (Hy, Hx, Hz, 3)
-        lo, hi = world.reshape(-1, 3).min(0), world.reshape(-1, 3).max(0)
+        # world AABB of the sampling box from its 8 corners (cheaper than all Hy*Hx*Hz points)
+        box = np.stack(np.meshgrid(spec.x_range, spec.y_range, spec.z_range, indexing="ij"), -1).reshape(-1, 3)
+        box = box @ T[:3, :3].T + T[:3, 3]
+        lo, hi = box.min(0), box.max(0)
     for obj, pose in objects:
         pose = np.asarray(pose, np.float64)
         corners = np.stack(np.meshgrid(*obj.bounds.T, indexing="ij"), -1).reshape(-1, 3)   # (8, 3) object frame
@@ -372,6 +374,8 @@ def local_occupancy_np(grid: OccupancyGrid, to_world: np.ndarray, spec: LocalGri
         o_lo, o_hi = wc.min(0), wc.max(0)
         if np.any(o_hi < lo) or np.any(o_lo > hi):
             continue                       # small objects are usually nowhere near the window goal
+        if world is None:
+            world = local @ T[:3, :3].T + T[:3, 3]                                       # (Hy, Hx, Hz, 3)
         near = np.all((world >= o_lo) & (world <= o_hi), axis=-1)                       # (Hy, Hx, Hz)
         inv = invert_rigid(pose)
         p = world[near]
