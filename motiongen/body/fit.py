@@ -1,0 +1,351 @@
+"""Joints (T, 22, 3) → SMPL-X parameters: initialise, then refine by gradient descent.
+
+Initialisation: the 3-frame MLP's rotations (`mlp.py`; smoothed over time), or identity
+without a network, then *swing correction* (`analytic_init`): down the tree, each joint is
+rotated by the smallest rotation (Kabsch at the pelvis and spine3) that points its bones at the
+target joints, keeping the MLP's twist. Refinement then optimises all frames at once (6D
+rotations, translations, one β per sequence) with L-BFGS on
+
+    w_joints  · mean ‖J(θ) − X‖²                 joint positions
+  + w_smooth_joints · mean ‖J_{t-1} − 2J_t + J_{t+1}‖²   joint acceleration
+  + w_smooth_rot    · mean ‖R_{t-1} − 2R_t + R_{t+1}‖²_F rotation acceleration (no flips/jitter)
+  + w_prior  · mean ‖R − R_init‖²_F              stay near the initialisation (twist is
+                                                 barely observable from joints)
+  + w_betas  · ‖β‖² / nβ                         shape prior
+  + w_contact · mean over feet in contact of ‖J_{t+1} − J_t‖²  (optional)
+
+(seed 000: 3D keypoint L2, second-difference smoothness of keypoints and joint angles, ℓ2
+shape prior). Only joint kinematics run per iteration (`BodyModel.joints_from_rotmats`), never
+the mesh. Small tensors make torch's intra-op threads pure overhead here, so refinement runs
+single-threaded by default (`threads`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from motiongen.body._threads import torch_threads
+from motiongen.body.mlp import JointsToBodyMLP
+from motiongen.body.model import BodyModel, load_body_model
+from motiongen.body.rotations import matrix_to_axis_angle, matrix_to_rot6d, rot6d_to_matrix
+from motiongen.errors import ConfigError
+from motiongen.skeleton import BODY_PARENTS, FOOT_JOINTS, NUM_BODY_JOINTS
+
+_CHILDREN = {j: [c for c in range(NUM_BODY_JOINTS) if BODY_PARENTS[c] == j] for j in range(NUM_BODY_JOINTS)}
+
+
+@dataclass
+class RefineConfig:
+    max_steps: int = 30             # L-BFGS iterations (Adam: steps)
+    optimizer: str = "lbfgs"        # "lbfgs" | "adam"
+    lr: float = 1.0                 # L-BFGS step scale; Adam uses adam_lr
+    adam_lr: float = 0.01
+    tol: float = 1e-6               # stop when the loss changes less than this (1e4 × m²)
+    w_joints: float = 1.0
+    w_smooth_joints: float = 0.1
+    w_smooth_rot: float = 0.03
+    w_prior: float = 1e-4
+    w_betas: float = 1e-5
+    w_contact: float = 0.0
+    optimize_betas: bool = True
+    mlp_smooth_sigma: float = 2.0   # frames; Gaussian smoothing of the per-frame MLP rotations
+    threads: int = 1                # torch intra-op threads during refinement; 0: unchanged
+
+
+@dataclass
+class FitResult:
+    global_orient: np.ndarray       # (T, 3) axis-angle
+    body_pose: np.ndarray           # (T, 63) axis-angle
+    transl: np.ndarray              # (T, 3)
+    betas: np.ndarray               # (nβ,)
+    joints: np.ndarray              # (T, 22, 3) fitted body-model joints
+    per_frame_error: np.ndarray     # (T,) mean joint distance to the target, metres
+    mpjpe_mlp: float | None         # metres, the MLP's raw prediction (None without MLP)
+    mpjpe_init: float               # metres, after initialisation (MLP + swing correction, or analytic)
+    mpjpe: float                    # metres, after refinement
+    steps: int
+    seconds: float
+    init: str                       # "mlp" | "analytic"
+    history: list = field(default_factory=list)
+
+
+# ---- analytic initialisation -----------------------------------------------------------
+
+def _kabsch(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Rotation R (..., 3, 3) minimising Σ‖R a_k − b_k‖² for vectors a, b (..., K, 3)."""
+    H = a.transpose(-1, -2) @ b                                   # (..., 3, 3) = Σ a_k b_kᵀ
+    U, _, Vh = torch.linalg.svd(H)
+    d = torch.sign(torch.det(Vh.transpose(-1, -2) @ U.transpose(-1, -2)))
+    D = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], -1))
+    return Vh.transpose(-1, -2) @ D @ U.transpose(-1, -2)
+
+
+def _min_rotation(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Smallest rotation (..., 3, 3) taking direction a to direction b (..., 3)."""
+    a = torch.nn.functional.normalize(a, dim=-1)
+    b = torch.nn.functional.normalize(b, dim=-1)
+    v = torch.cross(a, b, dim=-1)
+    c = (a * b).sum(-1)[..., None, None]
+    from motiongen.body.rotations import skew
+
+    K = skew(v)
+    eye = torch.eye(3, dtype=a.dtype, device=a.device).expand(K.shape)
+    return eye + K + K @ K / (1 + c).clamp(min=1e-6)
+
+
+def analytic_init(joints: torch.Tensor, rest: torch.Tensor, rot_init: torch.Tensor | None = None) -> torch.Tensor:
+    """Inverse kinematics by swing correction: joints (T, 22, 3), rest joints (22, 3),
+    optional local rotations (T, 22, 3, 3) to start from (e.g. the MLP's) -> local rotmats
+    (T, 22, 3, 3) whose bone directions match the targets exactly (lengths are the rest ones).
+
+    Going down the tree, each joint's global rotation is rotated by the smallest rotation
+    (Kabsch for the pelvis and spine3, which have several children) that points its bones at
+    the targets. Twist about a bone is unobservable from its child alone, so it is kept from
+    `rot_init` (none without it); leaves keep their initial local rotation.
+    """
+    T = joints.shape[0]
+    eye = torch.eye(3, dtype=joints.dtype, device=joints.device).expand(T, 3, 3)
+    G = [None] * NUM_BODY_JOINTS                                   # global rotations (T, 3, 3)
+    R = [None] * NUM_BODY_JOINTS
+    for j in range(NUM_BODY_JOINTS):
+        p = BODY_PARENTS[j]
+        Gp = G[p] if p >= 0 else eye
+        Gc = Gp @ rot_init[:, j] if rot_init is not None else Gp   # candidate global rotation
+        kids = _CHILDREN[j]
+        if kids:
+            a = (rest[kids] - rest[j]).expand(T, len(kids), 3) @ Gc.transpose(-1, -2)   # bones (T, K, 3)
+            b = joints[:, kids] - joints[:, j:j + 1]                                  # targets (T, K, 3)
+            Gc = (_kabsch(a, b) if len(kids) > 1 else _min_rotation(a[:, 0], b[:, 0])) @ Gc
+        G[j] = Gc
+        R[j] = Gp.transpose(-1, -2) @ Gc
+    return torch.stack(R, 1)
+
+
+def smooth_rotations(R: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Gaussian smoothing over time of rotations (T, J, 3, 3), in 6D then re-orthonormalised.
+
+    The MLP sees one frame (and two neighbours) at a time, so what joints do not determine
+    (leaf-joint and twist rotations) jitters from frame to frame; this removes that before the
+    prior anchors refinement to it."""
+    T = R.shape[0]
+    if sigma <= 0 or T < 3:
+        return R
+    r = min(int(3 * sigma), T - 1)
+    x = torch.arange(-r, r + 1, dtype=R.dtype, device=R.device)
+    k = torch.exp(-0.5 * (x / sigma) ** 2)
+    k = (k / k.sum())[None, None]                                             # (1, 1, 2r+1)
+    d6 = matrix_to_rot6d(R)                                                   # (T, J, 6)
+    seq = d6.permute(1, 2, 0).reshape(-1, 1, T)                               # (J*6, 1, T)
+    seq = torch.nn.functional.pad(seq, (r, r), mode="replicate")
+    out = torch.nn.functional.conv1d(seq, k).reshape(d6.shape[1], 6, T).permute(2, 0, 1)
+    return rot6d_to_matrix(out)
+
+
+# ---- refinement ------------------------------------------------------------------------
+
+def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_init: torch.Tensor,
+           cfg: RefineConfig = RefineConfig(), contact: torch.Tensor | None = None,
+           fixed_betas: bool = False):
+    """Refine (T, 22, 3, 3) rotations, (T, 3) translations and (nβ,) betas to fit target
+    joints (T, 22, 3). Returns (rotmats, transl, betas, steps, history)."""
+    T = target.shape[0]
+    R0 = rot_init.detach()
+    rot6d = matrix_to_rot6d(R0).clone().requires_grad_(True)                   # (T, 22, 6)
+    betas = betas_init.detach().clone().requires_grad_(cfg.optimize_betas and not fixed_betas)
+    with torch.no_grad():
+        transl0 = target[:, 0] - bm.rest_joints(betas)[0]                      # (T, 3) pelvis on target
+    transl = transl0.clone().requires_grad_(True)
+    params = [rot6d, transl] + ([betas] if betas.requires_grad else [])
+    nb = max(betas.numel(), 1)
+    # Scaled so that a 1 cm mean error is a loss of about 1: keeps L-BFGS tolerances meaningful.
+    scale = 1e4
+    if contact is not None:
+        both = (contact[1:] & contact[:-1]).to(target.dtype)                  # (T-1, 4)
+
+    def loss_fn():
+        R = rot6d_to_matrix(rot6d)                                             # (T, 22, 3, 3)
+        J = bm.joints_from_rotmats(R, transl, betas)                           # (T, 22, 3)
+        loss = cfg.w_joints * (J - target).square().sum(-1).mean()
+        if T >= 3:
+            if cfg.w_smooth_joints:
+                acc = J[2:] - 2 * J[1:-1] + J[:-2]
+                loss = loss + cfg.w_smooth_joints * acc.square().sum(-1).mean()
+            if cfg.w_smooth_rot:
+                racc = R[2:] - 2 * R[1:-1] + R[:-2]
+                loss = loss + cfg.w_smooth_rot * racc.square().sum((-1, -2)).mean()
+        if cfg.w_prior:
+            loss = loss + cfg.w_prior * (R - R0).square().sum((-1, -2)).mean()
+        if betas.requires_grad and cfg.w_betas:
+            loss = loss + cfg.w_betas * betas.square().sum() / nb
+        if contact is not None and cfg.w_contact and T >= 2:
+            vel = (J[1:, list(FOOT_JOINTS)] - J[:-1, list(FOOT_JOINTS)]).square().sum(-1)   # (T-1, 4)
+            loss = loss + cfg.w_contact * (vel * both).sum() / both.sum().clamp(min=1)
+        return loss * scale
+
+    with torch_threads(cfg.threads):
+        steps, history = _optimise(cfg, params, loss_fn)
+    with torch.no_grad():
+        R = rot6d_to_matrix(rot6d)
+    return R, transl.detach(), betas.detach(), steps, history
+
+
+def _optimise(cfg: RefineConfig, params: list, loss_fn) -> tuple[int, list[float]]:
+    history: list[float] = []
+    steps = 0
+    if cfg.optimizer == "lbfgs":
+        opt = torch.optim.LBFGS(params, lr=cfg.lr, max_iter=cfg.max_steps, history_size=20,
+                                tolerance_grad=1e-7, tolerance_change=cfg.tol, line_search_fn="strong_wolfe")
+
+        def closure():
+            opt.zero_grad(set_to_none=True)
+            loss = loss_fn()
+            loss.backward()
+            history.append(loss.item())
+            return loss
+
+        opt.step(closure)
+        steps = opt.state[opt._params[0]]["n_iter"]
+    elif cfg.optimizer == "adam":
+        opt = torch.optim.Adam(params, lr=cfg.adam_lr)
+        prev = None
+        for steps in range(1, cfg.max_steps + 1):
+            opt.zero_grad(set_to_none=True)
+            loss = loss_fn()
+            loss.backward()
+            opt.step()
+            history.append(loss.item())
+            if prev is not None and steps % 10 == 0:
+                if abs(prev - history[-1]) < cfg.tol * 10:
+                    break
+            if steps % 10 == 0:
+                prev = history[-1]
+    else:
+        raise ConfigError(f"refine.optimizer: expected 'lbfgs' or 'adam', got {cfg.optimizer!r}")
+    return steps, history
+
+
+# ---- the default MLP -------------------------------------------------------------------
+
+def _model_key(bm: BodyModel) -> str:
+    h = hashlib.sha1()
+    h.update(bm.J_template.cpu().numpy().tobytes())
+    h.update(bm.J_dirs.cpu().numpy().tobytes())
+    return h.hexdigest()[:12]
+
+
+def default_mlp(bm: BodyModel, cache: bool = True, verbose: bool = False) -> JointsToBodyMLP:
+    """A small MLP trained briefly on synthetic motion of `bm` (about 30-60 s on 1-2 CPU
+    cores), cached per body model under the motiongen cache. Good enough as an initialiser
+    (a few cm); refinement does the rest."""
+    from motiongen.body.train_mlp import DataConfig, MLPConfig, TrainMLPConfig, load_mlp, save_checkpoint, train
+    from motiongen.paths import cache_dir
+
+    cfg = TrainMLPConfig(steps=1500, batch_size=256, lr=2e-3, log_every=250, threads=1,
+                         mlp=MLPConfig(width=256, layers=4, num_betas=min(10, bm.num_betas)),
+                         data=DataConfig(num_sequences=128, seq_frames=240))
+    # Keyed by body model and training recipe, so a changed recipe never loads a stale network.
+    recipe = hashlib.sha1(repr(cfg).encode()).hexdigest()[:8]
+    path = cache_dir() / "body" / f"default_mlp_{_model_key(bm)}_{recipe}.pt"
+    if cache and path.is_file():
+        return load_mlp(path)
+    model = train(cfg, bm=bm, verbose=verbose)
+    if cache:
+        save_checkpoint(model, cfg, path)
+    return model
+
+
+# ---- public entry point ------------------------------------------------------------------
+
+def fit_joints(joints, body_model: BodyModel | None = None, mlp: JointsToBodyMLP | str | Path | None = None, *,
+               betas=None, contact=None, config: RefineConfig = RefineConfig(), refine_steps: int | None = None,
+               device: str | torch.device = "cpu") -> FitResult:
+    """Fit SMPL-X parameters to body joints.
+
+    joints: (T, 22, 3) array/tensor, metres, y-up (SMPL-X body joint order).
+    body_model: default `load_body_model()` (user file or procedural).
+    mlp: a `JointsToBodyMLP`, a checkpoint path, "auto" (`default_mlp`), or None (analytic init).
+    betas: (nβ,) known shape (kept fixed) or None (estimated).
+    contact: (T, 4) bool for `skeleton.FOOT_JOINTS`, used when config.w_contact > 0.
+    refine_steps: overrides config.max_steps; 0 returns the initialisation.
+    """
+    X = joints if isinstance(joints, torch.Tensor) else torch.as_tensor(np.array(joints))  # copy: inputs may be read-only memmaps
+    if X.ndim != 3 or X.shape[1:] != (NUM_BODY_JOINTS, 3) or X.shape[0] < 1:
+        raise ConfigError(f"joints: expected shape (T, {NUM_BODY_JOINTS}, 3), got {tuple(X.shape)}")
+    if not torch.isfinite(X).all():
+        raise ConfigError("joints contain NaN or inf")
+    bm = body_model if body_model is not None else load_body_model()
+    dev = torch.device(device)
+    bm = bm.to(dev)
+    X = X.to(device=dev, dtype=bm.J_template.dtype)
+    t0 = time.time()
+    with torch_threads(config.threads):
+        if isinstance(mlp, str) and mlp == "auto":
+            mlp = default_mlp(bm)
+        elif isinstance(mlp, (str, Path)):
+            from motiongen.body.train_mlp import load_mlp
+
+            mlp = load_mlp(mlp)
+        b_known = None if betas is None else torch.as_tensor(np.asarray(betas), dtype=X.dtype, device=dev)
+        mpjpe_mlp, R_mlp = None, None
+        b_init = torch.zeros(bm.num_betas, dtype=X.dtype, device=dev)
+        if mlp is not None:
+            mlp = mlp.to(dev)
+            pred = mlp.predict(X)
+            R_mlp = pred["rotmats"].to(X.dtype)                               # (T, 22, 3, 3)
+            if pred["betas"] is not None:
+                b_init[: pred["betas"].numel()] = pred["betas"][: bm.num_betas]
+            with torch.no_grad():
+                b_m = b_init if b_known is None else b_known
+                J_mlp = bm.joints_from_rotmats(R_mlp, X[:, 0] - bm.rest_joints(b_m)[0], b_m)
+                mpjpe_mlp = (J_mlp - X).norm(dim=-1).mean().item()
+        if b_known is not None:
+            b_init = b_known
+        if R_mlp is not None:
+            R_mlp = smooth_rotations(R_mlp, config.mlp_smooth_sigma)
+        R_init = analytic_init(X, bm.rest_joints(b_init), R_mlp)
+        init = "mlp" if mlp is not None else "analytic"
+        with torch.no_grad():
+            J0 = bm.joints_from_rotmats(R_init, X[:, 0] - bm.rest_joints(b_init)[0], b_init)
+            mpjpe_init = (J0 - X).norm(dim=-1).mean().item()
+        cfg = config if refine_steps is None else RefineConfig(**{**config.__dict__, "max_steps": refine_steps})
+        ct = None if contact is None else torch.as_tensor(np.asarray(contact), dtype=torch.bool, device=dev)
+        if cfg.max_steps > 0:
+            R, transl, b, steps, hist = refine(bm, X, R_init, b_init, cfg, ct, fixed_betas=b_known is not None)
+        else:
+            R, transl, b, steps, hist = R_init, X[:, 0] - bm.rest_joints(b_init)[0], b_init, 0, []
+        with torch.no_grad():
+            J = bm.joints_from_rotmats(R, transl, b)
+            err = (J - X).norm(dim=-1).mean(-1)                                  # (T,)
+            aa = matrix_to_axis_angle(R)                                          # (T, 22, 3)
+    T = X.shape[0]
+    return FitResult(
+        global_orient=aa[:, 0].cpu().numpy(), body_pose=aa[:, 1:].reshape(T, 63).cpu().numpy(),
+        transl=transl.cpu().numpy(), betas=b.cpu().numpy(), joints=J.cpu().numpy(),
+        per_frame_error=err.cpu().numpy(), mpjpe_mlp=mpjpe_mlp, mpjpe_init=mpjpe_init, mpjpe=err.mean().item(),
+        steps=int(steps), seconds=time.time() - t0, init=init, history=hist)
+
+
+def save_amass_npz(path: str | Path, fit: FitResult, fps: float, gender: str = "neutral") -> Path:
+    """AMASS SMPL-X layout: poses (T, 165) = root 3 + body 63 + jaw 3 + eyes 6 + hands 90
+    (zeros beyond the body), trans, betas, mocap_framerate, gender; plus root_orient,
+    pose_body, joints and per-frame joint error. Written to a temp file, then renamed."""
+    path = Path(path)
+    T = fit.transl.shape[0]
+    poses = np.zeros((T, 165), np.float32)
+    poses[:, :3] = fit.global_orient
+    poses[:, 3:66] = fit.body_pose
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
+    np.savez(tmp, poses=poses, trans=fit.transl.astype(np.float32), betas=fit.betas.astype(np.float32),
+             mocap_framerate=np.array(float(fps)), gender=np.array(gender), surface_model_type=np.array("smplx"),
+             root_orient=fit.global_orient.astype(np.float32), pose_body=fit.body_pose.astype(np.float32),
+             joints=fit.joints.astype(np.float32), joint_error=fit.per_frame_error.astype(np.float32))
+    os.replace(tmp, path)
+    return path

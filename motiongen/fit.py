@@ -1,0 +1,194 @@
+"""Fit SMPL-X body parameters to joint trajectories.
+
+    python -m motiongen.fit input=motion.npz out=DIR [body.model_path=SMPLX_NEUTRAL.npz]
+        [mlp=auto|none|PATH] [steps=40] [mesh=auto|true|false] [mesh_format=obj|glb]
+        [mesh_max_frames=60] [fps=30] [device=cpu]
+    python -m motiongen.fit input=DATASET_DIR seq=NAME out=DIR ...
+
+`input` is a joints npz (key `joints`: (T, 22, 3) or (S, T, 22, 3); 24 joints = body+index1
+are accepted and the first 22 used; optional key `fps`) or a motiongen dataset directory
+with `seq`. Writes `params.npz` (or `params_s{i}.npz` per sample; AMASS SMPL-X layout, see
+`motiongen.body.fit.save_amass_npz`), `report.json` (MPJPE before/after refinement) and, with
+the procedural body model (or mesh=true), a per-frame mesh sequence under `mesh/`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from motiongen.cli import user_errors_exit_2
+from motiongen.errors import ConfigError, DataError
+from motiongen.skeleton import NUM_BODY_JOINTS
+
+DEFAULTS = {"input": None, "out": None, "seq": None, "body.model_path": None, "body.num_betas": "10",
+            "mlp": "auto", "steps": None, "mesh": "auto", "mesh_format": "obj", "mesh_max_frames": "60",
+            "fps": None, "device": "cpu"}
+
+
+def parse_args(argv: list[str]) -> dict:
+    opts = dict(DEFAULTS)
+    for a in argv:
+        if "=" not in a:
+            raise ConfigError(f"expected key=value arguments, got {a!r} (keys: {', '.join(DEFAULTS)})")
+        k, v = a.split("=", 1)
+        k = k.lstrip("+")
+        if k not in DEFAULTS:
+            raise ConfigError(f"unknown option {k!r}; expected one of {', '.join(DEFAULTS)}")
+        opts[k] = v
+    for k in ("input", "out"):
+        if not opts[k]:
+            raise ConfigError(f"missing required option {k}=...")
+    return opts
+
+
+def _int(opts, key):
+    try:
+        return int(opts[key])
+    except (TypeError, ValueError):
+        raise ConfigError(f"{key}: expected an integer, got {opts[key]!r}") from None
+
+
+def load_input(opts: dict) -> tuple[np.ndarray, float, str]:
+    """-> joints (S, T, 22, 3) float32, fps, description."""
+    path = Path(opts["input"])
+    if path.is_dir():
+        from motiongen.data.format import MotionDataset
+
+        if not opts["seq"]:
+            raise ConfigError("input is a dataset directory: name the sequence with seq=NAME")
+        ds = MotionDataset.open(path)
+        seq = next((s for s in ds.sequences if s.name == opts["seq"]), None)
+        if seq is None:
+            raise DataError(path / "sequences.json", opts["seq"], "no sequence with this name")
+        joints = np.asarray(ds.joints[seq.start:seq.end], np.float32)[None, :, :NUM_BODY_JOINTS]
+        return joints, ds.fps, f"{path}:{seq.name}"
+    if not path.is_file():
+        raise DataError(path, None, "input file does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "joints" not in z.files:
+                raise DataError(path, "joints", f"required key is missing (keys: {', '.join(z.files)})")
+            joints = np.asarray(z["joints"])
+            fps = float(z["fps"]) if "fps" in z.files else 30.0
+    except DataError:
+        raise
+    except Exception as e:
+        raise DataError(path, None, f"not a readable .npz file ({type(e).__name__}: {e})") from None
+    if joints.ndim == 3:
+        joints = joints[None]
+    if joints.ndim != 4 or joints.shape[-1] != 3 or joints.shape[1] < 1:
+        raise DataError(path, "joints", f"expected shape (T, 22, 3) or (S, T, 22, 3), found {joints.shape}")
+    if joints.shape[2] not in (NUM_BODY_JOINTS, NUM_BODY_JOINTS + 2):
+        raise DataError(path, "joints", f"expected {NUM_BODY_JOINTS} SMPL-X body joints (or 24 with index1), "
+                                        f"found {joints.shape[2]}")
+    if not np.issubdtype(joints.dtype, np.floating):
+        raise DataError(path, "joints", f"expected floating point values, found {joints.dtype}")
+    joints = joints[:, :, :NUM_BODY_JOINTS].astype(np.float32)
+    bad = ~np.isfinite(joints).all(axis=(2, 3))
+    if bad.any():
+        s, t = np.argwhere(bad)[0]
+        raise DataError(path, "joints", f"non-finite value (NaN or inf) at sample {s} frame {t}")
+    if not (math.isfinite(fps) and fps > 0):
+        raise DataError(path, "fps", f"expected a positive number, found {fps}")
+    return joints, fps, str(path)
+
+
+def export_meshes(bm, fit, out_dir: Path, fmt: str, max_frames: int) -> int:
+    """Per-frame meshes (every k-th frame, at most max_frames) -> number written."""
+    import torch
+    import trimesh
+
+    T = fit.transl.shape[0]
+    stride = max(1, math.ceil(T / max(max_frames, 1)))
+    frames = list(range(0, T, stride))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with torch.no_grad():
+        for i in range(0, len(frames), 32):
+            idx = frames[i:i + 32]
+            V = bm.vertices(torch.as_tensor(fit.global_orient[idx]), torch.as_tensor(fit.body_pose[idx]),
+                            torch.as_tensor(fit.transl[idx]), torch.as_tensor(fit.betas)).numpy()
+            for t, v in zip(idx, V):
+                mesh = trimesh.Trimesh(v, bm.faces, process=False)
+                tmp = out_dir / f".frame_{t:05d}.{os.getpid()}.tmp.{fmt}"
+                mesh.export(tmp, file_type=fmt)
+                os.replace(tmp, out_dir / f"frame_{t:05d}.{fmt}")
+    return len(frames)
+
+
+def run(argv: list[str]) -> dict:
+    opts = parse_args(argv)
+    from motiongen.body.fit import RefineConfig, fit_joints, save_amass_npz
+    from motiongen.body.model import load_body_model
+
+    joints, fps, desc = load_input(opts)
+    if opts["fps"] is not None:
+        try:
+            fps = float(opts["fps"])
+        except ValueError:
+            raise ConfigError(f"fps: expected a number, got {opts['fps']!r}") from None
+    if opts["mesh"] not in ("auto", "true", "false"):
+        raise ConfigError(f"mesh: expected auto, true or false, got {opts['mesh']!r}")
+    if opts["mesh_format"] not in ("obj", "glb", "ply"):
+        raise ConfigError(f"mesh_format: expected obj, glb or ply, got {opts['mesh_format']!r}")
+    bm = load_body_model(opts["body.model_path"], num_betas=_int(opts, "body.num_betas"), device=opts["device"])
+    mlp = opts["mlp"]
+    if mlp in ("none", "None", "null", ""):
+        mlp = None
+    elif mlp != "auto":
+        if not Path(mlp).is_file():
+            raise DataError(mlp, None, "MLP checkpoint not found (use mlp=auto or mlp=none)")
+        from motiongen.body.train_mlp import load_mlp
+
+        mlp = load_mlp(mlp, device=opts["device"])
+    if mlp == "auto":
+        from motiongen.body.fit import default_mlp
+
+        print("preparing the default joints->SMPL-X MLP (trained once, then cached)...", flush=True)
+        mlp = default_mlp(bm, verbose=False)
+    cfg = RefineConfig()
+    if opts["steps"] is not None:
+        cfg.max_steps = _int(opts, "steps")
+    out = Path(opts["out"])
+    out.mkdir(parents=True, exist_ok=True)
+    S = joints.shape[0]
+    do_mesh = opts["mesh"] == "true" or (opts["mesh"] == "auto" and bm.is_procedural)
+    report = {"input": desc, "fps": fps, "body_model": str(bm.path), "procedural_body": bm.is_procedural,
+              "init": None, "samples": []}
+    for s in range(S):
+        fit = fit_joints(joints[s], bm, mlp, config=cfg, device=opts["device"])
+        name = "params.npz" if S == 1 else f"params_s{s:02d}.npz"
+        save_amass_npz(out / name, fit, fps)
+        entry = {"sample": s, "frames": int(joints.shape[1]), "params": name,
+                 "mpjpe_mlp_cm": None if fit.mpjpe_mlp is None else round(fit.mpjpe_mlp * 100, 4),
+                 "mpjpe_init_cm": round(fit.mpjpe_init * 100, 4), "mpjpe_cm": round(fit.mpjpe * 100, 4),
+                 "max_frame_error_cm": round(float(fit.per_frame_error.max()) * 100, 4),
+                 "steps": fit.steps, "seconds": round(fit.seconds, 3)}
+        report["init"] = fit.init
+        if do_mesh:
+            mdir = out / ("mesh" if S == 1 else f"mesh_s{s:02d}")
+            entry["mesh_dir"] = mdir.name
+            entry["mesh_frames"] = export_meshes(bm, fit, mdir, opts["mesh_format"], _int(opts, "mesh_max_frames"))
+        report["samples"].append(entry)
+        mlp_txt = "" if fit.mpjpe_mlp is None else f"MLP alone {entry['mpjpe_mlp_cm']:.2f} cm, "
+        print(f"sample {s}: {entry['frames']} frames, MPJPE {mlp_txt}init ({fit.init}) {entry['mpjpe_init_cm']:.2f} cm -> "
+              f"refined {entry['mpjpe_cm']:.3f} cm ({fit.steps} steps, {fit.seconds:.2f} s) -> {out / name}",
+              flush=True)
+    tmp = out / f".report.{os.getpid()}.tmp"
+    tmp.write_text(json.dumps(report, indent=2))
+    os.replace(tmp, out / "report.json")
+    return report
+
+
+@user_errors_exit_2
+def main(argv: list[str] | None = None) -> None:
+    run(sys.argv[1:] if argv is None else argv)
+
+
+if __name__ == "__main__":
+    main()
