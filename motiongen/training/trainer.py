@@ -125,7 +125,7 @@ def train(cfg: DictConfig, run_dir: Path) -> Path | None:
     model, diffusion, meta = build_from_config(cfg, ds.joint_set, ds.action_names)
     model.to(device)
     ema = EMA(model, tc.ema_decay)
-    opt = torch.optim.Adam(model.parameters(), lr=tc.lr, weight_decay=tc.weight_decay)
+    opt = torch.optim.Adam(model.parameters(), lr=tc.lr, weight_decay=tc.weight_decay, fused=True)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lr_lambda(tc))
     noise_gen = torch.Generator(device=device).manual_seed(seed * 7919 + info.rank)
     step = 0

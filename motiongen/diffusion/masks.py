@@ -1,0 +1,76 @@
+"""Known-entry masks for inpainting conditioning.
+
+Channel layout: D = J*3, joint j occupies channels 3j..3j+2 as (x, y, z); the pelvis is
+joint 0 (channels 0, 1, 2). The same builder (``known_mask``) makes sampling-time masks and,
+through ``sample_known_mask``, the random training masks, so the model trains on exactly the
+patterns it will be asked to complete.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from motiongen.errors import ConfigError
+
+
+@dataclass
+class MaskConfig:
+    p_transition: float = 0.9   # probability that a window has pinned transition frames
+    max_transition: int = 2     # k ~ U{1..max} when it does (reference: 2)
+    p_goal_xz: float = 0.9      # probability of pinning the last-frame pelvis x, z
+    p_goal_y: float = 0.0       # probability of also pinning pelvis y (given goal x, z)
+    p_hand: float = 0.0         # probability of pinning a hand joint (all of x, y, z) at the last frame
+    hand_joint: int = 21        # SMPL-X right wrist
+    goal_joint: int = 0         # pelvis
+
+
+def known_mask(batch: int, window: int, num_joints: int, transition: int | Tensor = 0,
+               goal_xz: bool | Tensor = False, goal_y: bool | Tensor = False,
+               hand: bool | Tensor = False, hand_joint: int = 21, goal_joint: int = 0,
+               device: torch.device | str = "cpu") -> Tensor:
+    """(B, L, J*3) bool. Scalars apply to the whole batch; (B,) tensors per sample.
+
+    transition k: first k frames, all channels. goal_xz / goal_y: last frame, ``goal_joint``
+    x, z / y. hand: last frame, ``hand_joint`` x, y, z.
+    """
+    B, L, J = batch, window, num_joints
+    used = [goal_joint] + ([hand_joint] if bool(torch.as_tensor(hand).any()) else [])
+    for j in used:
+        if not 0 <= j < J:
+            raise ConfigError(f"mask joint {j} outside 0..{J - 1}")
+    as_b = lambda v, dt: torch.as_tensor(v, device=device).to(dt).expand(B)  # noqa: E731
+    k = as_b(transition, torch.long)
+    if bool((k > L).any()) or bool((k < 0).any()):
+        raise ConfigError(f"transition frames must be in 0..{L}")
+    frames = torch.arange(L, device=device)
+    mask = (frames[None, :] < k[:, None])[:, :, None].expand(B, L, 3 * J).clone()  # (B, L, D)
+    g = 3 * goal_joint
+    mask[:, -1, g + 0] |= as_b(goal_xz, torch.bool)
+    mask[:, -1, g + 2] |= as_b(goal_xz, torch.bool)
+    mask[:, -1, g + 1] |= as_b(goal_y, torch.bool)
+    if len(used) > 1:
+        h = 3 * hand_joint
+        mask[:, -1, h:h + 3] |= as_b(hand, torch.bool)[:, None]
+    return mask
+
+
+def sample_known_mask(batch: int, window: int, num_joints: int, cfg: MaskConfig | None = None,
+                      generator: torch.Generator | None = None,
+                      device: torch.device | str = "cpu") -> Tensor:
+    """Random training masks (B, L, J*3) bool drawn per sample from ``cfg``."""
+    cfg = cfg if cfg is not None else MaskConfig()
+    if cfg.max_transition >= window:
+        raise ConfigError(f"mask.max_transition {cfg.max_transition} must be < window {window}")
+    gen_device = generator.device if generator is not None else "cpu"
+    u = torch.rand(4, batch, generator=generator, device=gen_device)  # (4, B)
+    k = torch.randint(1, cfg.max_transition + 1, (batch,), generator=generator, device=gen_device) \
+        if cfg.max_transition > 0 else torch.zeros(batch, dtype=torch.long, device=gen_device)
+    k = torch.where(u[0] < cfg.p_transition, k, torch.zeros_like(k))
+    goal_xz = u[1] < cfg.p_goal_xz
+    goal_y = goal_xz & (u[2] < cfg.p_goal_y)
+    hand = u[3] < cfg.p_hand
+    return known_mask(batch, window, num_joints, k.to(device), goal_xz.to(device), goal_y.to(device),
+                      hand.to(device), cfg.hand_joint, cfg.goal_joint, device)

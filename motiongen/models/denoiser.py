@@ -1,0 +1,178 @@
+"""Transformer denoiser: one token per window frame plus token 0 for the conditioning.
+
+Token 0 = timestep embedding + scene embedding + action embedding (TRUMANS A.2). The
+network knows nothing of β or of what its output means (ε, x0 or v): that is the
+diffusion object's business.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from motiongen.models.action_encoder import ActionEncoder
+from motiongen.models.condition import Condition
+from motiongen.models.config import ModelConfig
+from motiongen.models.layers import Dropout, TransformerStack, sinusoidal_embedding
+from motiongen.models.scene_encoder import SceneEncoder
+
+
+@dataclass
+class EncodedCondition:
+    """Encoder outputs, computed once per sampling call and reused at every step.
+
+    ``broadcast`` marks an embedding built without any batch information (no condition
+    tensors at all): its batch dim is 1 and it applies to every sample.
+    """
+
+    token0: Tensor                 # (B, W) scene + action embeddings (nulls where dropped)
+    per_frame: Tensor | None       # (B, L, W) per-frame action embeddings, or None
+    broadcast: bool = False
+
+    def drop_all(self) -> "EncodedCondition":
+        raise TypeError("drop conditions before encoding: model.encode_condition(cond.drop_all())")
+
+    def concat(self, other: "EncodedCondition") -> "EncodedCondition":
+        a, b = self, other
+        if a.broadcast and b.broadcast:
+            return a
+        if a.broadcast:
+            a = a._expand(b.token0.shape[0])
+        if b.broadcast:
+            b = b._expand(a.token0.shape[0])
+        if (a.per_frame is None) != (b.per_frame is None):
+            raise ValueError("EncodedCondition.concat: per-frame embeddings in one half only")
+        frames = None if a.per_frame is None else torch.cat([a.per_frame, b.per_frame], 0)
+        return EncodedCondition(torch.cat([a.token0, b.token0], 0), frames)
+
+    def _expand(self, n: int) -> "EncodedCondition":
+        frames = None if self.per_frame is None else self.per_frame.expand(n, -1, -1)
+        return EncodedCondition(self.token0.expand(n, -1), frames)
+
+
+class TimestepEmbedder(nn.Module):
+    """Sinusoidal features of t followed by an MLP (as in MDM and the reference)."""
+
+    def __init__(self, width: int):
+        super().__init__()
+        self.width = width
+        self.mlp = nn.Sequential(nn.Linear(width, width), nn.SiLU(), nn.Linear(width, width))
+
+    def forward(self, t: Tensor) -> Tensor:  # (B,) -> (B, W)
+        return self.mlp(sinusoidal_embedding(t, self.width))
+
+
+class Denoiser(nn.Module):
+    def __init__(self, cfg: ModelConfig, num_joints: int, num_actions: int, window: int,
+                 scene_res: tuple[int, int, int] = (32, 32, 32)):
+        super().__init__()
+        W = cfg.width
+        self.cfg = cfg
+        self.num_joints, self.num_actions, self.window = num_joints, num_actions, window
+        self.scene_res = tuple(scene_res)
+        D = num_joints * 3
+        self.channels = D
+        self.input_scale = math.sqrt(W) if cfg.scale_input else 1.0
+        self.input = nn.Linear(2 * D if cfg.mask_channels else D, W)
+        self.register_buffer("pos", sinusoidal_embedding(torch.arange(window + 1), W), persistent=False)
+        self.t_embed = TimestepEmbedder(W)
+        self.drop = Dropout(cfg.dropout)
+        self.blocks = TransformerStack(W, cfg.layers, cfg.heads, cfg.ff, cfg.dropout, cfg.activation,
+                                       cfg.norm_first, cfg.attention_dropout)
+        self.output = nn.Linear(W, D)
+
+        # Null embeddings start small but non-zero so dropping a condition changes the output
+        # from the first step (a zero null would make "dropped" look like "absent").
+        self.scene_encoder = None
+        if cfg.use_scene:
+            self.scene_encoder = SceneEncoder(
+                self.scene_res, cfg.scene_patch, cfg.scene_width, cfg.scene_layers, cfg.scene_heads,
+                cfg.scene_ff, cfg.scene_dropout, cfg.activation, cfg.scene_norm_first, cfg.scene_pool, W,
+                cfg.attention_dropout)
+            self.scene_null = nn.Parameter(torch.randn(W) * 0.02)
+        self.action_encoder = None
+        if cfg.use_actions and num_actions > 0:
+            self.action_encoder = ActionEncoder(
+                num_actions, window, cfg.action_width, cfg.action_layers, cfg.action_heads, cfg.action_ff,
+                cfg.action_dropout, cfg.activation, cfg.action_norm_first, W, cfg.action_per_frame,
+                cfg.attention_dropout)
+            self.action_null = nn.Parameter(torch.randn(W) * 0.02)
+            self.action_null_frames = (nn.Parameter(torch.randn(W) * 0.02)
+                                       if cfg.action_per_frame else None)
+
+    # -- conditioning -------------------------------------------------------------------
+    def encode_condition(self, cond: Condition | None) -> EncodedCondition:
+        """Run the scene/action encoders once; the result can be passed to ``forward``."""
+        W = self.cfg.width
+        cond = cond if cond is not None else Condition()
+        B = cond.batch_size
+        n = B if B is not None else 1
+        ref = next(self.parameters())
+        token0 = torch.zeros(n, W, device=ref.device, dtype=ref.dtype)  # (n, W)
+        per_frame = None
+
+        if self.scene_encoder is not None:
+            token0 = token0 + self._with_null(cond.scene, cond.drop_scene, n,
+                                              lambda s: self.scene_encoder(s), self.scene_null)
+        if self.action_encoder is not None:
+            pooled, frames = self._encode_actions(cond.actions, cond.drop_actions, n)
+            token0 = token0 + pooled
+            per_frame = frames
+        return EncodedCondition(token0, per_frame, broadcast=B is None)
+
+    def _with_null(self, value: Tensor | None, drop: Tensor | None, n: int, encode, null: Tensor) -> Tensor:
+        if value is None or (drop is not None and bool(drop.all())):
+            return null.expand(n, -1)  # (n, W); skips the encoder for fully dropped batches
+        emb = encode(value)  # (n, W)
+        if drop is None:
+            return emb
+        return torch.where(drop[:, None], null.expand_as(emb), emb)
+
+    def _encode_actions(self, actions: Tensor | None, drop: Tensor | None, n: int):
+        enc = self.action_encoder
+        if actions is None or (drop is not None and bool(drop.all())):
+            frames = None
+            if enc.per_frame:
+                frames = self.action_null_frames.expand(n, self.window, -1)  # (n, L, W)
+            return self.action_null.expand(n, -1), frames
+        pooled, frames = enc(actions)  # (n, W), (n, L, W) | None
+        if drop is not None:
+            pooled = torch.where(drop[:, None], self.action_null.expand_as(pooled), pooled)
+            if frames is not None:
+                frames = torch.where(drop[:, None, None], self.action_null_frames.expand_as(frames), frames)
+        return pooled, frames
+
+    # -- denoising ----------------------------------------------------------------------
+    def forward(self, x_t: Tensor, t: Tensor, cond: Condition | EncodedCondition | None = None,
+                known_mask: Tensor | None = None) -> Tensor:
+        """x_t (B, L, D), t (B,) long, cond raw or pre-encoded, known_mask (B, L, D) bool -> (B, L, D)."""
+        B, L, D = x_t.shape
+        if D != self.channels:
+            raise ValueError(f"denoiser expects {self.channels} channels (J*3), got {D}")
+        if L > self.window:
+            raise ValueError(f"window {L} longer than configured {self.window}")
+        enc = cond if isinstance(cond, EncodedCondition) else self.encode_condition(cond)
+
+        inp = x_t
+        if self.cfg.mask_channels:
+            mask = known_mask if known_mask is not None else torch.zeros_like(x_t, dtype=torch.bool)
+            inp = torch.cat([x_t, mask.to(x_t.dtype)], -1)  # (B, L, 2D)
+        h = self.input(inp) * self.input_scale  # (B, L, W)
+        if enc.per_frame is not None:
+            h = h + enc.per_frame[:, :L]
+        tok0 = self.t_embed(t) + enc.token0  # (B, W); token0 may be (1, W) and broadcast
+        h = torch.cat([tok0[:, None], h], 1) + self.pos[: L + 1]  # (B, L+1, W)
+        h = self.blocks(self.drop(h))
+        return self.output(h[:, 1:])  # (B, L, D); token 0's output is dropped
+
+
+def build_model(cfg: ModelConfig, num_joints: int, num_actions: int, window: int,
+                scene_res: tuple[int, int, int] = (32, 32, 32)) -> Denoiser:
+    return Denoiser(cfg, num_joints, num_actions, window, scene_res)
+
+
+def count_parameters(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())

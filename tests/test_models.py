@@ -1,0 +1,178 @@
+"""Networks: presets, shapes, condition handling (null embeddings, dropout, caching), overfitting."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+import torch
+
+from motiongen.diffusion import GaussianDiffusion, known_mask
+from motiongen.models import (PRESETS, Condition, EncodedCondition, ModelConfig, build_model, count_parameters,
+                              drop_conditions, model_config)
+from motiongen.models.layers import fast_dropout
+
+J, A, L = 22, 6, 16
+
+
+def _cond(B: int, seed: int = 0) -> Condition:
+    g = torch.Generator().manual_seed(seed)
+    return Condition(scene=(torch.rand(B, 32, 32, 32, generator=g) < 0.3).float(),
+                     actions=(torch.rand(B, L, A, generator=g) < 0.3).float())
+
+
+@pytest.fixture
+def one_thread():
+    """Tiny models are faster on one thread, and on a shared, oversubscribed CPU a second
+    OpenMP thread that is descheduled stalls every small op (seconds per step observed)."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def _tiny(**kw):
+    torch.manual_seed(0)
+    return build_model(model_config("tiny", **kw), J, A, L).eval()
+
+
+@pytest.mark.parametrize("name", sorted(PRESETS))
+def test_presets_build_and_forward(name):
+    torch.manual_seed(0)
+    model = build_model(PRESETS[name], J, A, L).eval()
+    B = 1 if name != "tiny" else 3
+    with torch.no_grad():
+        out = model(torch.randn(B, L, J * 3), torch.randint(0, 100, (B,)), _cond(B))
+    assert out.shape == (B, L, J * 3)
+    assert torch.isfinite(out).all()
+
+
+def test_preset_sizes():
+    counts = {n: count_parameters(build_model(PRESETS[n], J, A, L)) for n in ("tiny",)}
+    assert counts["tiny"] < 1_000_000
+    paper = PRESETS["paper"]
+    assert (paper.width, paper.layers, paper.heads, paper.ff, paper.dropout) == (512, 6, 16, 1024, 0.1)
+    assert (paper.scene_layers, paper.scene_heads, paper.action_layers, paper.action_heads) == (6, 16, 6, 16)
+    ref = PRESETS["reference"]
+    assert (ref.layers, ref.ff, ref.norm_first, ref.scene_patch, ref.scene_ff, ref.scene_width) == \
+        (8, 512, False, 8, 2048, 1024)
+
+
+def test_model_config_is_hydra_structured():
+    from omegaconf import OmegaConf
+
+    node = OmegaConf.structured(PRESETS["paper"])
+    assert ModelConfig(**OmegaConf.to_container(node)) == PRESETS["paper"]
+    with pytest.raises(Exception):
+        model_config("tiny", no_such_field=1)
+
+
+def test_scene_patches_tile_the_ground_plane():
+    model = _tiny()
+    enc = model.scene_encoder
+    assert enc.pos.shape[1] == 16 + 1  # 4x4 patches of 8 + CLS
+    assert enc.patch_embed.in_features == 32 * 8 * 8
+
+
+def test_dropped_conditions_use_null_embeddings():
+    model = _tiny()
+    B = 2
+    x, t, cond = torch.randn(B, L, J * 3), torch.tensor([5, 60]), _cond(B)
+    with torch.no_grad():
+        full = model(x, t, cond)
+        dropped = Condition(cond.scene, cond.actions, torch.tensor([True, False]), torch.tensor([False, False]))
+        out = model(x, t, dropped)
+        null_scene = model(x, t, Condition(None, cond.actions))
+        none = model(x, t, None)
+        both = model(x, t, cond.drop_all())
+    torch.testing.assert_close(out[0], null_scene[0])  # sample 0: scene replaced by its null
+    torch.testing.assert_close(out[1], full[1])        # sample 1 untouched
+    assert not torch.allclose(out[0], full[0])
+    torch.testing.assert_close(both, none)             # fully unconditional = no condition at all
+
+
+def test_drop_conditions_rate():
+    cond = Condition(scene=torch.zeros(20000, 1, 1, 1), actions=torch.zeros(20000, 1, 1))
+    out = drop_conditions(cond, 0.1, 0.3, torch.Generator().manual_seed(0))
+    assert float(out.drop_scene.float().mean()) == pytest.approx(0.1, abs=0.01)
+    assert float(out.drop_actions.float().mean()) == pytest.approx(0.3, abs=0.015)
+    # Independent draws, and existing drops are kept.
+    both = float((out.drop_scene & out.drop_actions).float().mean())
+    assert both == pytest.approx(0.03, abs=0.006)
+    again = drop_conditions(out, 0.0, 0.0)
+    assert torch.equal(again.drop_scene, out.drop_scene)
+
+
+def test_encoded_condition_matches_raw_and_concat():
+    model = _tiny(action_per_frame=True)
+    B = 2
+    x, t, cond = torch.randn(B, L, J * 3), torch.tensor([1, 2]), _cond(B)
+    with torch.no_grad():
+        enc = model.encode_condition(cond)
+        assert isinstance(enc, EncodedCondition) and enc.per_frame.shape == (B, L, model.cfg.width)
+        torch.testing.assert_close(model(x, t, enc), model(x, t, cond))
+        both = enc.concat(model.encode_condition(cond.drop_all()))
+        out2 = model(torch.cat([x, x]), torch.cat([t, t]), both)
+        torch.testing.assert_close(out2[B:], model(x, t, cond.drop_all()))
+        bc = model.encode_condition(None).concat(model.encode_condition(None))
+        assert model(x, t, bc).shape == x.shape
+
+
+def test_mask_channels_change_the_output():
+    model = _tiny(mask_channels=True)
+    assert model.input.in_features == 2 * J * 3
+    x, t, cond = torch.randn(1, L, J * 3), torch.tensor([3]), _cond(1)
+    m = known_mask(1, L, J, transition=2, goal_xz=True)
+    with torch.no_grad():
+        assert not torch.allclose(model(x, t, cond, known_mask=m), model(x, t, cond))
+
+
+def test_condition_to_and_concat():
+    c = _cond(2).to("cpu")
+    cc = c.concat(c.drop_all())
+    assert cc.scene.shape[0] == 4 and cc.drop_scene.tolist() == [False, False, True, True]
+
+
+def test_fast_dropout_rate_and_scale():
+    x = torch.ones(200_000)
+    y = fast_dropout(x, 0.1, True)
+    assert float((y == 0).float().mean()) == pytest.approx(0.1, abs=0.005)
+    assert float(y.mean()) == pytest.approx(1.0, abs=0.01)
+    assert torch.equal(fast_dropout(x, 0.1, False), x)
+
+
+def test_sampler_encodes_condition_once(one_thread):
+    model = _tiny()
+    calls = []
+    model.scene_encoder.register_forward_hook(lambda *a: calls.append(1))
+    d = GaussianDiffusion()
+    x = d.sample(model, (2, L, J * 3), _cond(2), steps=5, guidance_scale=2.0,
+                 generator=torch.Generator().manual_seed(0))
+    assert x.shape == (2, L, J * 3)
+    assert len(calls) == 1  # conditional encode only; the unconditional twin skips the encoder
+
+
+def test_tiny_overfits_one_batch(one_thread):
+    torch.manual_seed(0)
+    model = build_model(model_config("tiny", dropout=0.0, scene_dropout=0.0, action_dropout=0.0), J, A, L)
+    d = GaussianDiffusion()
+    g = torch.Generator().manual_seed(0)
+    B = 8
+    x0 = torch.rand(B, L, J * 3, generator=g) * 2 - 1
+    noise = torch.randn(B, L, J * 3, generator=g)
+    t = torch.randint(0, 100, (B,), generator=g)
+    mask = known_mask(B, L, J, transition=2, goal_xz=True)
+    cond = _cond(B)
+    opt = torch.optim.Adam(model.parameters(), lr=4e-3)
+    start = time.perf_counter()
+    losses = []
+    for _ in range(200):
+        loss = d.training_losses(model, x0, t, cond, known_mask=mask, noise=noise)["loss"]
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+        if losses[-1] < losses[0] / 10:
+            break
+    assert losses[-1] < losses[0] / 10, (losses[0], losses[-1])
+    assert time.perf_counter() - start < 30
