@@ -1,0 +1,109 @@
+"""train.py end to end: smoke run, SIGKILL + resume equality, 2-process DDP, user errors."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from tests.helpers import make_dataset
+
+ROOT = Path(__file__).resolve().parents[1]
+# A very small model so each step takes milliseconds; dropout stays on (RNG must resume too).
+TINY = ["model.width=32", "model.layers=1", "model.heads=2", "model.ff=64", "model.scene_width=32",
+        "model.scene_layers=1", "model.scene_heads=2", "model.scene_ff=64", "model.action_width=32",
+        "model.action_layers=1", "model.action_heads=2", "model.action_ff=64"]
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("ds") / "ds", scenes=(1, 2, 71, 91), seqs_per_scene=2, T=150)
+
+
+def _args(dataset, run_dir, steps, **over):
+    a = [f"data=dataset", f"data.root={dataset}", f"hydra.run.dir={run_dir}", f"train.max_steps={steps}",
+         "train.batch_size=8", "train.num_workers=0", "train.log_every=2", "train.val_every=0",
+         "train.figure_every=0", "train.ckpt_every=3", "train.progress=false", "train.threads=1", *TINY]
+    a += [f"{k}={v}" for k, v in over.items()]
+    return a
+
+
+def _run(args, **kw):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.run([sys.executable, str(ROOT / "train.py"), *args], capture_output=True, text=True,
+                          env=env, cwd=ROOT, timeout=600, **kw)
+
+
+def _weights(path):
+    ck = torch.load(path, map_location="cpu", weights_only=False)
+    return ck
+
+
+def test_smoke_run_writes_events_and_checkpoint(dataset, tmp_path):
+    r = _run(_args(dataset, tmp_path, 4, **{"train.val_every": 2, "train.figure_every": 4}))
+    assert r.returncode == 0, r.stderr[-2000:]
+    ck = _weights(tmp_path / "checkpoints" / "last.pt")
+    assert ck["step"] == 4 and ck["format"] == "motiongen-checkpoint"
+    assert ck["joint_names"][0] == "pelvis" and ck["action_names"] == ["walk", "sit"]
+    assert ck["config"]["model"]["width"] == 32 and len(ck["stats"]["center"]) == 66
+    events = list((tmp_path / "tb").glob("events.out.tfevents.*"))
+    assert events
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    acc = EventAccumulator(str(tmp_path / "tb"), size_guidance={"images": 0}).Reload()
+    tags = acc.Tags()
+    for t in ("train/loss", "train/lr", "train/grad_norm", "train/samples_per_s", "val/loss"):
+        assert t in tags["scalars"], (t, tags["scalars"])
+    assert "samples/windows" in tags["images"]
+
+
+def test_sigkill_then_resume_is_bitwise_identical(dataset, tmp_path):
+    steps = 40   # long enough that the kill after the first checkpoint lands mid-run, even under load
+    ref = _run(_args(dataset, tmp_path / "ref", steps))
+    assert ref.returncode == 0, ref.stderr[-2000:]
+
+    run = tmp_path / "killed"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    p = subprocess.Popen([sys.executable, str(ROOT / "train.py"), *_args(dataset, run, steps)], cwd=ROOT, env=env,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    while not (run / "checkpoints" / "step_00000003.pt").exists():
+        assert p.poll() is None and time.time() < deadline, "training ended before the first checkpoint"
+        time.sleep(0.01)
+    p.send_signal(signal.SIGKILL)
+    p.wait()
+    assert (run / "checkpoints" / "last.pt").exists()
+    assert _weights(run / "checkpoints" / "last.pt")["step"] < steps
+    res = _run(_args(dataset, run, steps, **{"train.resume": "auto"}))
+    assert res.returncode == 0, res.stderr[-2000:]
+    a, b = _weights(tmp_path / "ref" / "checkpoints" / "last.pt"), _weights(run / "checkpoints" / "last.pt")
+    assert a["step"] == b["step"] == steps
+    for part in ("model", "ema"):
+        for k in a[part]:
+            assert torch.equal(a[part][k], b[part][k]), (part, k)
+    sa, sb = a["optimizer"]["state"], b["optimizer"]["state"]
+    for i in sa:
+        assert torch.equal(sa[i]["exp_avg_sq"], sb[i]["exp_avg_sq"])
+
+
+def test_two_process_ddp(dataset, tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
+    r = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node=2", "--master_port=29517",
+                        str(ROOT / "train.py"), *_args(dataset, tmp_path, 4)],
+                       capture_output=True, text=True, env=env, cwd=ROOT, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    ck = _weights(tmp_path / "checkpoints" / "last.pt")
+    assert ck["step"] == 4 and len(ck["rng"]) == 2          # one RNG state per rank
+    assert r.stdout.count("checkpoint:") == 1               # rank 0 alone reports/writes
+
+
+def test_user_errors_exit_2(dataset, tmp_path):
+    r = _run(_args(dataset, tmp_path, 4, **{"train.resume": str(tmp_path / "missing.pt")}))
+    assert r.returncode == 2 and "missing.pt" in r.stderr and "Traceback" not in r.stderr
+    r = _run(_args(tmp_path / "no_such_dataset", tmp_path, 4))
+    assert r.returncode == 2 and "no_such_dataset" in r.stderr and "Traceback" not in r.stderr
+    r = _run(_args(dataset, tmp_path, 4, **{"train.batch_size": 100000}))
+    assert r.returncode == 2 and "batch_size" in r.stderr
