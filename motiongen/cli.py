@@ -6,7 +6,7 @@ import functools
 import sys
 from typing import Callable, TypeVar
 
-from motiongen.errors import MotiongenError
+from motiongen.errors import ConfigError, MotiongenError
 
 F = TypeVar("F", bound=Callable)
 
@@ -28,3 +28,51 @@ def user_errors_exit_2(fn: F) -> F:
             sys.exit(2)
 
     return wrapper  # type: ignore[return-value]
+
+
+_TRUE, _FALSE = ("true", "1", "yes", "on"), ("false", "0", "no", "off")
+
+
+def _convert(key: str, value: str, kind):
+    if kind is bool:
+        v = value.strip().lower()
+        if v not in _TRUE + _FALSE:
+            raise ConfigError(f"{key}={value!r}: expected true or false")
+        return v in _TRUE
+    if kind is list:
+        v = value.strip()
+        if v.startswith("[") and v.endswith("]"):
+            v = v[1:-1]
+        return [s.strip().strip("'\"") for s in v.split(",") if s.strip()]
+    if kind in (int, float):
+        try:
+            return kind(value)
+        except ValueError:
+            raise ConfigError(f"{key}={value!r}: expected {'an integer' if kind is int else 'a number'}") from None
+    if not value:
+        raise ConfigError(f"{key}= is empty: expected a value")
+    return value
+
+
+def parse_key_values(argv: list[str], spec: dict[str, tuple[type, object]], required: tuple[str, ...] = (),
+                     usage: str = "") -> dict:
+    """Parse ``key=value`` arguments for the small (non-Hydra) tools.
+
+    spec maps each key to (type, default) with type one of str, int, float, bool, list
+    (``[a,b]`` or ``a,b``); a leading ``+`` on a key is accepted, as Hydra users type it.
+    Unknown keys, bad values and missing required keys raise ConfigError (exit 2 in CLIs).
+    """
+    out = {k: d for k, (_, d) in spec.items()}
+    hint = f" (usage: {usage})" if usage else f" (keys: {', '.join(spec)})"
+    for arg in argv:
+        key, eq, value = arg.partition("=")
+        key = key.lstrip("+")
+        if not eq:
+            raise ConfigError(f"argument {arg!r}: expected key=value{hint}")
+        if key not in spec:
+            raise ConfigError(f"unknown key {key!r}; expected one of {', '.join(spec)}")
+        out[key] = _convert(key, value, spec[key][0])
+    for key in required:
+        if out.get(key) in (None, "", []):
+            raise ConfigError(f"missing {key}=...{hint}")
+    return out

@@ -22,36 +22,17 @@ from pathlib import Path
 
 import numpy as np
 
-from motiongen.cli import user_errors_exit_2
+from motiongen.cli import parse_key_values, user_errors_exit_2
 from motiongen.errors import ConfigError, DataError
 from motiongen.skeleton import NUM_BODY_JOINTS
 
-DEFAULTS = {"input": None, "out": None, "seq": None, "body.model_path": None, "body.num_betas": "10",
-            "mlp": "auto", "steps": None, "mesh": "auto", "mesh_format": "obj", "mesh_max_frames": "60",
-            "fps": None, "device": "cpu"}
+SPEC = {"input": (str, None), "out": (str, None), "seq": (str, None), "body.model_path": (str, None),
+        "body.num_betas": (int, 10), "mlp": (str, "auto"), "steps": (int, None), "mesh": (str, "auto"),
+        "mesh_format": (str, "obj"), "mesh_max_frames": (int, 60), "fps": (float, None), "device": (str, "cpu")}
 
 
 def parse_args(argv: list[str]) -> dict:
-    opts = dict(DEFAULTS)
-    for a in argv:
-        if "=" not in a:
-            raise ConfigError(f"expected key=value arguments, got {a!r} (keys: {', '.join(DEFAULTS)})")
-        k, v = a.split("=", 1)
-        k = k.lstrip("+")
-        if k not in DEFAULTS:
-            raise ConfigError(f"unknown option {k!r}; expected one of {', '.join(DEFAULTS)}")
-        opts[k] = v
-    for k in ("input", "out"):
-        if not opts[k]:
-            raise ConfigError(f"missing required option {k}=...")
-    return opts
-
-
-def _int(opts, key):
-    try:
-        return int(opts[key])
-    except (TypeError, ValueError):
-        raise ConfigError(f"{key}: expected an integer, got {opts[key]!r}") from None
+    return parse_key_values(argv, SPEC, required=("input", "out"), usage="python -m motiongen.fit input=motion.npz out=DIR")
 
 
 def load_input(opts: dict) -> tuple[np.ndarray, float, str]:
@@ -128,15 +109,12 @@ def run(argv: list[str]) -> dict:
 
     joints, fps, desc = load_input(opts)
     if opts["fps"] is not None:
-        try:
-            fps = float(opts["fps"])
-        except ValueError:
-            raise ConfigError(f"fps: expected a number, got {opts['fps']!r}") from None
+        fps = opts["fps"]
     if opts["mesh"] not in ("auto", "true", "false"):
         raise ConfigError(f"mesh: expected auto, true or false, got {opts['mesh']!r}")
     if opts["mesh_format"] not in ("obj", "glb", "ply"):
         raise ConfigError(f"mesh_format: expected obj, glb or ply, got {opts['mesh_format']!r}")
-    bm = load_body_model(opts["body.model_path"], num_betas=_int(opts, "body.num_betas"), device=opts["device"])
+    bm = load_body_model(opts["body.model_path"], num_betas=opts["body.num_betas"], device=opts["device"])
     mlp = opts["mlp"]
     if mlp in ("none", "None", "null", ""):
         mlp = None
@@ -153,7 +131,7 @@ def run(argv: list[str]) -> dict:
         mlp = default_mlp(bm, verbose=False)
     cfg = RefineConfig()
     if opts["steps"] is not None:
-        cfg.max_steps = _int(opts, "steps")
+        cfg.max_steps = opts["steps"]
     out = Path(opts["out"])
     out.mkdir(parents=True, exist_ok=True)
     S = joints.shape[0]
@@ -173,7 +151,7 @@ def run(argv: list[str]) -> dict:
         if do_mesh:
             mdir = out / ("mesh" if S == 1 else f"mesh_s{s:02d}")
             entry["mesh_dir"] = mdir.name
-            entry["mesh_frames"] = export_meshes(bm, fit, mdir, opts["mesh_format"], _int(opts, "mesh_max_frames"))
+            entry["mesh_frames"] = export_meshes(bm, fit, mdir, opts["mesh_format"], opts["mesh_max_frames"])
         report["samples"].append(entry)
         mlp_txt = "" if fit.mpjpe_mlp is None else f"MLP alone {entry['mpjpe_mlp_cm']:.2f} cm, "
         print(f"sample {s}: {entry['frames']} frames, MPJPE {mlp_txt}init ({fit.init}) {entry['mpjpe_init_cm']:.2f} cm -> "

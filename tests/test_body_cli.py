@@ -96,7 +96,7 @@ def test_fit_cli_user_errors(tmp_path, capsys, joints, model_path):
     assert "[joints]" in _exit2(capsys, [f"input={nokey}"] + base)
     assert "not found" in _exit2(capsys, [f"input={ok}", f"body.model_path={tmp_path / 'SMPLX.npz'}"] + base)
     assert "checkpoint" in _exit2(capsys, [f"input={ok}", f"out={tmp_path / 'o'}", f"mlp={tmp_path / 'x.pt'}"])
-    assert "unknown option" in _exit2(capsys, [f"input={ok}", "bogus=1"] + base)
+    assert "unknown key" in _exit2(capsys, [f"input={ok}", "bogus=1"] + base)
     assert "out" in _exit2(capsys, [f"input={ok}"])
     assert "seq=" in _exit2(capsys, [f"input={tmp_path}"] + base)
 

@@ -20,14 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from motiongen.cli import user_errors_exit_2
+from motiongen.cli import parse_key_values, user_errors_exit_2
 from motiongen.data.bvh import UNITS, ImportedMotion, import_bvh, load_mapping
 from motiongen.data.format import DatasetWriter
 from motiongen.data.occupancy import OccupancyGrid
 from motiongen.errors import ConfigError
 from motiongen.skeleton import BODY, LEFT_FOOT_JOINTS, RIGHT_FOOT_JOINTS
 
-KEYS = {"inputs", "out", "mapping", "scene", "scene_id", "split", "unit", "fps", "action", "overwrite"}
 # (joint, height threshold m): toes touch lower than ankles.
 CONTACT_HEIGHT = {LEFT_FOOT_JOINTS[0]: 0.12, RIGHT_FOOT_JOINTS[0]: 0.12,
                   LEFT_FOOT_JOINTS[1]: 0.05, RIGHT_FOOT_JOINTS[1]: 0.05}
@@ -36,26 +35,14 @@ EMPTY_GRID_VOXEL = 0.05
 EMPTY_GRID_HEIGHT = 2.0
 
 
-def parse_args(argv: list[str]) -> dict[str, str]:
-    out = {}
-    for a in argv:
-        key, eq, value = a.partition("=")
-        if not eq:
-            raise ConfigError(f"argument {a!r}: expected key=value (keys: {', '.join(sorted(KEYS))})")
-        if key not in KEYS:
-            raise ConfigError(f"unknown key {key!r}; expected one of {', '.join(sorted(KEYS))}")
-        out[key] = value
-    for key in ("inputs", "out"):
-        if not out.get(key):
-            raise ConfigError(f"missing {key}=...; usage: inputs=[a.bvh,b.bvh] out=DIR [mapping=FILE]")
-    return out
+SPEC = {"inputs": (list, []), "out": (str, None), "mapping": (str, None), "scene": (str, None), "scene_id": (int, 0),
+        "split": (str, "train"), "unit": (str, None), "fps": (float, 30.0), "action": (str, None),
+        "overwrite": (bool, False)}
+USAGE = "inputs=[a.bvh,b.bvh] out=DIR [mapping=FILE]"
 
 
-def _list(value: str) -> list[str]:
-    value = value.strip()
-    if value.startswith("[") and value.endswith("]"):
-        value = value[1:-1]
-    return [v.strip().strip("'\"") for v in value.split(",") if v.strip()]
+def parse_args(argv: list[str]) -> dict:
+    return parse_key_values(argv, SPEC, required=("inputs", "out"), usage=USAGE)
 
 
 def foot_contact(joints: np.ndarray, fps: float) -> np.ndarray:
@@ -79,22 +66,17 @@ def empty_grid(motions: list[np.ndarray], margin: float = 1.0) -> OccupancyGrid:
 
 
 def run(args: dict[str, str]) -> Path:
-    inputs = _list(args["inputs"])
+    inputs = args["inputs"]
     if not inputs:
         raise ConfigError("inputs=[]: give at least one BVH file")
     mapping = load_mapping(args["mapping"]) if args.get("mapping") else None
-    try:
-        fps = float(args.get("fps", 30))
-        scene_id = int(args.get("scene_id", 0))
-    except ValueError as e:
-        raise ConfigError(f"fps / scene_id: {e}") from None
+    fps, scene_id = args["fps"], args["scene_id"]
     if not fps > 0:
         raise ConfigError(f"fps must be positive, got {fps}")
     unit = args.get("unit") or None
     if unit is not None and unit not in UNITS:
         raise ConfigError(f"unit={unit!r}: expected one of {list(UNITS)}")
-    split = args.get("split", "train")
-    overwrite = args.get("overwrite", "false").lower() in ("1", "true", "yes")
+    split, overwrite = args["split"], args["overwrite"]
 
     motions: list[tuple[str, ImportedMotion]] = []
     names: set[str] = set()

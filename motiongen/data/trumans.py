@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from motiongen.cli import user_errors_exit_2
+from motiongen.cli import parse_key_values, user_errors_exit_2
 from motiongen.data.format import DEFAULT_SPLITS, DatasetWriter
 from motiongen.data.occupancy import OccupancyGrid, load_npy
-from motiongen.errors import ConfigError, DataError
+from motiongen.errors import DataError
 from motiongen.skeleton import get_joint_set
 
 TRUMANS_ACTIONS: tuple[str, ...] = (
@@ -475,31 +475,14 @@ def convert_trumans(release_dir: str | Path, out_dir: str | Path, joints: str = 
 # ---------------------------------------------------------------------------------------
 # CLI
 
-_BOOL = {"true": True, "1": True, "yes": True, "false": False, "0": False, "no": False}
-_CLI_KEYS = {"release": str, "out": str, "joints": str, "overwrite": bool, "progress": bool, "allow_pickle": bool}
+_CLI_SPEC = {"release": (str, None), "out": (str, None), "joints": (str, "body+index1"), "overwrite": (bool, False),
+             "progress": (bool, True), "allow_pickle": (bool, False)}
 
 
 def parse_cli(argv: list[str]) -> dict:
     """key=value arguments -> convert_trumans kwargs; ConfigError on anything else."""
-    kw: dict = {}
-    for arg in argv:
-        key, sep, val = arg.partition("=")
-        if not sep:
-            raise ConfigError(f"argument {arg!r}: expected key=value with key in {sorted(_CLI_KEYS)}")
-        if key not in _CLI_KEYS:
-            raise ConfigError(f"unknown key {key!r}: expected one of {sorted(_CLI_KEYS)}")
-        if _CLI_KEYS[key] is bool:
-            if val.lower() not in _BOOL:
-                raise ConfigError(f"{key}={val!r}: expected true or false")
-            kw[key] = _BOOL[val.lower()]
-        else:
-            if not val:
-                raise ConfigError(f"{key}= is empty: expected a value")
-            kw[key] = val
-    for key in ("release", "out"):
-        if key not in kw:
-            raise ConfigError(f"missing {key}=DIR (usage: python -m motiongen.data.trumans release=DIR out=DIR)")
-    return kw
+    return parse_key_values(argv, _CLI_SPEC, required=("release", "out"),
+                            usage="python -m motiongen.data.trumans release=DIR out=DIR")
 
 
 @user_errors_exit_2
