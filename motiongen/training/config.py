@@ -29,5 +29,5 @@ class TrainConfig:
     amp: str = "auto"                # auto (bf16 on CUDA) | bf16 | none
     num_workers: int = 2
     deterministic: bool = True       # deterministic kernels (bitwise resume on CPU)
-    threads: int = 0                 # torch intra-op threads; 0 = torch default
+    threads: int = 0                 # torch intra-op threads; 0 = auto (CPU: cores/processes - workers)
     progress: bool = True

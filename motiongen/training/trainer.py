@@ -82,6 +82,11 @@ def train(cfg: DictConfig, run_dir: Path) -> Path | None:
         device = torch.device("cuda", info.local_rank)
     if tc.threads:
         torch.set_num_threads(tc.threads)
+    elif device.type == "cpu":
+        # Loader workers need cores too; oversubscribed OpenMP threads spin and stall every op
+        # (measured: 2 threads + 2 workers on 2 cores ran >10x slower than 1 thread).
+        per_proc = max(1, (os.cpu_count() or 1) // info.world - tc.num_workers)
+        torch.set_num_threads(per_proc)
     if tc.deterministic:
         os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
         torch.use_deterministic_algorithms(True, warn_only=True)

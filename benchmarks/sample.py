@@ -1,0 +1,94 @@
+"""Sampling speed and goal-reaching quality per sampler setting (not a timed test).
+
+    python benchmarks/sample.py [ckpt=PATH] [threads=2] [preset=paper] [seconds=20]
+
+Speed: the `paper` preset with random-init weights (speed does not depend on training) on the
+CPU, DDPM-100 vs DDIM-50/25/10, batch 1 and 8: real-time factor = seconds of motion produced
+(all samples) per second of compute, over a straight 10 m walk in an empty scene.
+Quality: with `ckpt=` (a trained checkpoint, e.g. the demo), the goal-reaching error at the
+same step counts on a fixed goal route: pelvis error on arrival (pinned, so ~0 when reached)
+and the hips' midpoint error (the body's own position), plus how many goals were reached.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import types
+
+import numpy as np
+import torch
+
+
+def _args(argv):
+    out = {"ckpt": None, "threads": "2", "preset": "paper", "episodes": "6"}
+    for a in argv:
+        k, _, v = a.partition("=")
+        out[k] = v
+    return out
+
+
+def _random_loaded(preset: str):
+    from motiongen.data.windows import NormStats, WindowConfig
+    from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, MaskConfig
+    from motiongen.models import build_model, model_config
+    from motiongen.skeleton import BODY
+
+    model = build_model(model_config(preset), 22, 10, 16).eval().requires_grad_(False)
+    center = np.zeros(66, np.float32)
+    center[2] = 0.6
+    return types.SimpleNamespace(model=model, diffusion=GaussianDiffusion(DiffusionConfig()),
+                                 stats=NormStats(center, np.full(66, 1.5, np.float32)), joint_set=BODY,
+                                 action_names=[f"a{i}" for i in range(10)], window=WindowConfig(),
+                                 mask=MaskConfig(), device=torch.device("cpu"))
+
+
+SETTINGS = [("ddpm", 100), ("ddim", 50), ("ddim", 25), ("ddim", 10)]
+
+
+def main(argv):
+    from motiongen.sampling import Goal, LoopConfig, SamplerSettings, generate
+
+    a = _args(argv)
+    torch.set_num_threads(int(a["threads"]))
+    loaded = _random_loaded(a["preset"])
+    episodes = int(a["episodes"])
+    print(f"speed: preset={a['preset']}, {torch.get_num_threads()} threads, {episodes} episodes per run")
+    print(f"{'sampler':>10} {'batch':>5} {'motion s':>9} {'wall s':>7} {'RTF':>6}")
+    for sampler, steps in SETTINGS:
+        for batch in (1, 8):
+            loop = LoopConfig(warmup=1, max_episodes=episodes - 1)
+            t = time.perf_counter()
+            import warnings
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                m = generate(loaded, None, (0, 0), [Goal([0, 100.0])], path="straight", num_samples=batch,
+                             sampler=SamplerSettings(sampler, steps), generator=torch.Generator().manual_seed(0),
+                             loop=loop)
+            wall = time.perf_counter() - t
+            print(f"{sampler + '-' + str(steps):>10} {batch:>5} {batch * m.duration:9.1f} {wall:7.2f} "
+                  f"{batch * m.duration / wall:6.2f}", flush=True)
+    if not a["ckpt"]:
+        print("quality: pass ckpt=PATH (a trained checkpoint) for goal-reaching errors")
+        return
+    from motiongen.training.builders import load_model
+
+    ld = load_model(a["ckpt"])
+    goals = [Goal([1.5, 2.0]), Goal([-1.0, 4.0]), Goal([0.5, 6.0])]
+    print(f"quality: {a['ckpt']} (step {ld.step}), 3 goals over ~7 m in an empty scene, 4 samples")
+    print(f"{'sampler':>10} {'reached':>8} {'pelvis m':>9} {'hips m':>7} {'RTF':>6}")
+    for sampler, steps in SETTINGS:
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m = generate(ld, None, (0, 0), goals, num_samples=4, sampler=SamplerSettings(sampler, steps),
+                         generator=torch.Generator().manual_seed(0), loop=LoopConfig(max_episodes=40))
+        r = np.isfinite(m.arrival_error)
+        print(f"{sampler + '-' + str(steps):>10} {r.sum():>4}/{r.size:<3} {np.nanmean(m.arrival_error):9.3f} "
+              f"{np.nanmean(m.arrival_error_body):7.3f} {m.real_time_factor:6.2f}", flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -1,0 +1,297 @@
+"""`evaluate.py`: run the protocol for a resolved config and write report.json, report.md and
+figures (every file written to a temp name in `out` and renamed when all are done), and log
+them to TensorBoard when `run_dir=` is given. docs/evaluation.md explains every column."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from motiongen.errors import ConfigError, DataError, MotiongenError
+
+# (key, label, unit, arrow): arrow says which way is better; "≈ref" = closer to the reference row.
+METRICS = [
+    ("foot_skating", "foot skating", "ratio", "↓"),
+    ("goal_dist_m", "goal dist (pelvis)", "m", "↓"),
+    ("goal_dist_body_m", "goal dist (hips)", "m", "↓"),
+    ("success_0.2", "success@0.2", "ratio", "↑"),
+    ("success_0.5", "success@0.5", "ratio", "↑"),
+    ("traj_fail_rate", "traj fail", "ratio", "↓"),
+    ("completed", "completed", "ratio", "↑"),
+    ("penetration_frames", "scene pen. frames", "ratio", "↓"),
+    ("penetration_max_m", "scene pen. max", "m", "↓"),
+    ("floor_penetration_frames", "floor pen. frames", "ratio", "↓"),
+    ("contact_rate", "contact rate", "ratio", "↑"),
+    ("object_dist_m", "hand-object dist", "m", "↓"),
+    ("apd_m", "APD", "m", "↑"),
+    ("jerk", "mean jerk", "m/s³", "≈ref"),
+    ("seam_ratio", "seam jump", "ratio", "≈ref"),
+    ("pskl_gen_ref", "PSKL(gen,ref)", "nats", "↓"),
+    ("pskl_ref_gen", "PSKL(ref,gen)", "nats", "↓"),
+]
+DYNAMIC_ONLY = {"object_dist_m"}
+
+
+def _clean(v):
+    """JSON-safe: NaN/inf -> None, numpy scalars -> Python."""
+    if isinstance(v, dict):
+        return {str(k): _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    if isinstance(v, (np.floating, float)):
+        return float(v) if math.isfinite(float(v)) else None
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.ndarray):
+        return _clean(v.tolist())
+    return v
+
+
+def build_report(ev, meta: dict) -> dict:
+    """The report.json payload: meta, per setting the model and reference rows, per-pair details."""
+    out = {"meta": meta, "metrics": [{"key": k, "label": lab, "unit": u, "better": a} for k, lab, u, a in METRICS],
+           "notes": list(ev.notes), "wall_s": ev.wall_s, "settings": {}}
+    for st in ev.settings:
+        pairs = []
+        for r in ev.results[st]:
+            d = r.pair.describe()
+            d["apd_m"] = r.apd
+            d["completed"] = r.completed
+            d["seconds"] = r.wall_s
+            d["samples"] = [{k: v for k, v in m.items() if not k.startswith("_")} for m in r.per_sample]
+            pairs.append(d)
+        out["settings"][st] = {"model": ev.model.get(st, {}), "reference": ev.reference.get(st, {}), "pairs": pairs}
+    return _clean(out)
+
+
+def _fmt(v, unit: str) -> str:
+    if v is None:
+        return "n/a"
+    if unit == "ratio":
+        return f"{v:.3f}"
+    a = abs(v)
+    return f"{v:.3g}" if a >= 100 or a < 0.01 and a > 0 else f"{v:.3f}"
+
+
+def markdown(report: dict) -> str:
+    m = report["meta"]
+    lines = [f"# Evaluation: `{m['ckpt']}` (step {m['step']})", "",
+             f"Dataset `{m['dataset']}`, test scenes {', '.join(str(s) for s in m['scenes'])}; "
+             f"k = {m['k']} samples per pair, {m['pairs']} pairs per scene and setting; "
+             f"{m['sampler'].upper()}-{m['steps']}, guidance {m['guidance_scale']}, seed {m['seed']}. "
+             f"Wall time {report['wall_s']:.0f} s.", "",
+             "Arrows: ↓ lower is better, ↑ higher is better, ≈ref closer to the reference row is better. "
+             "The reference row is the dataset's own motion in the same scenes; n/a where a metric does "
+             "not apply to it (docs/evaluation.md).", ""]
+    for st, block in report["settings"].items():
+        rows = {"model": block["model"], "reference": block["reference"]}
+        keys = [x for x in METRICS if st == "dynamic" or x[0] not in DYNAMIC_ONLY]
+        n = block["model"].get("n_pairs", 0)
+        lines += [f"## {st} setting", "",
+                  f"{n} pair(s), {block['model'].get('n_samples', 0)} sample(s); reference: "
+                  f"{block['reference'].get('n_sequences', 0)} sequence(s), {block['reference'].get('n_frames', 0)} frames.", ""]
+        if not n:
+            lines += ["No pairs in this setting (see notes).", ""]
+            continue
+        lines.append("| | " + " | ".join(f"{lab} {a}" + (f" [{u}]" if u != "ratio" else "") for _, lab, u, a in keys) + " |")
+        lines.append("|---|" + "---:|" * len(keys))
+        for name, row in rows.items():
+            lines.append(f"| {name} | " + " | ".join(_fmt(row.get(k), u) for k, _, u, _ in keys) + " |")
+        lines += ["", f"![{st} metrics](plots/{st}_metrics.png)", ""]
+    if report["notes"]:
+        lines += ["## Notes", ""] + [f"- {x}" for x in report["notes"]] + [""]
+    lines += ["Trajectory figures: `plots/<setting>_scene<id>.png` (map, A* path, start ●, goal ★ / "
+              "interaction ■, object ▲, the k pelvis tracks).", ""]
+    return "\n".join(lines)
+
+
+class _Staging:
+    """Temp names inside `out`, renamed into place by commit() (a failed run leaves no partial report)."""
+
+    def __init__(self, out: Path):
+        self.out, self.files = out, []
+
+    def tmp(self, name: str) -> Path:
+        final = self.out / name
+        final.parent.mkdir(parents=True, exist_ok=True)
+        t = final.with_name(f".tmp-{os.getpid()}-{final.name}")
+        self.files.append((t, final))
+        return t
+
+    def commit(self) -> list[Path]:
+        done = []
+        for t, final in self.files:
+            os.replace(t, final)
+            done.append(final)
+        self.files = []
+        return done
+
+    def abort(self) -> None:
+        for t, _ in self.files:
+            t.unlink(missing_ok=True)
+
+
+def log_tensorboard(run_dir, report: dict, images: dict[str, Path], step: int) -> None:
+    """Scalars eval/<setting>/<model|reference>/<metric> and the figures, at the checkpoint's step."""
+    import matplotlib.image as mpimg
+    from torch.utils.tensorboard import SummaryWriter
+
+    w = SummaryWriter(log_dir=str(run_dir))
+    try:
+        for st, block in report["settings"].items():
+            for row in ("model", "reference"):
+                for k, v in block[row].items():
+                    if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+                        w.add_scalar(f"eval/{st}/{row}/{k}", v, step)
+        for tag, path in images.items():
+            img = mpimg.imread(str(path))                                                   # (H, W, 4) float in [0, 1]
+            w.add_image(f"eval/{tag}", img[..., :3], step, dataformats="HWC")
+        w.add_text("eval/report", report.get("_markdown", ""), step)
+    finally:
+        w.close()
+
+
+def _dataset_config(cfg, ckpt_config):
+    from omegaconf import OmegaConf
+
+    from motiongen.data.sources import DataConfig
+
+    node = cfg.get("data") or (ckpt_config.get("data") if ckpt_config is not None else None)
+    if node is None:
+        return DataConfig()
+    d = OmegaConf.to_container(node, resolve=True) if not isinstance(node, dict) else dict(node)
+    fields = DataConfig.__dataclass_fields__
+    return DataConfig(**{k: v for k, v in d.items() if k in fields})
+
+
+def run(cfg, default_out: Path) -> dict:
+    """The whole `evaluate.py` run for a resolved config. Returns the report dict."""
+    import torch
+    from omegaconf import OmegaConf
+
+    from motiongen.eval.protocol import SETTINGS, ProtocolConfig, evaluate
+    from motiongen.sampling import SamplerSettings
+
+    if not cfg.get("ckpt"):
+        raise ConfigError("ckpt=PATH is required (a checkpoint written by train.py)")
+    ckpt = Path(str(cfg.ckpt))
+    if not ckpt.is_file():
+        raise DataError(ckpt, None, "checkpoint file does not exist")
+    settings = cfg.get("settings")
+    settings = [settings] if isinstance(settings, str) else list(OmegaConf.to_container(settings) if settings is not None else SETTINGS)
+    bad = [s for s in settings if s not in SETTINGS]
+    if bad or not settings:
+        raise ConfigError(f"settings: expected a non-empty subset of {list(SETTINGS)}, got {settings}")
+    sampler = SamplerSettings(str(cfg.sampler), int(cfg.steps), float(cfg.get("eta", 0.0)), float(cfg.guidance_scale))
+    if sampler.sampler not in ("ddpm", "ddim"):
+        raise ConfigError(f"sampler: expected ddpm or ddim, got {sampler.sampler!r}")
+    if sampler.steps < 1:
+        raise ConfigError(f"steps must be >= 1, got {sampler.steps}")
+    k, npairs = int(cfg.k), int(cfg.pairs)
+    if k < 1 or npairs < 1:
+        raise ConfigError(f"k and pairs must be >= 1, got k={k}, pairs={npairs}")
+    threads = int(cfg.get("threads") or 0)
+    if threads > 0:
+        torch.set_num_threads(threads)
+    device = str(cfg.device)
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(f"device={device}: CUDA is not available")
+
+    from motiongen.training.builders import load_model
+
+    try:
+        loaded = load_model(ckpt, device)
+    except MotiongenError:
+        raise
+    except Exception as e:  # torch.load / unpickling / shape errors: the user's file
+        raise DataError(ckpt, None, f"unreadable or incompatible checkpoint ({type(e).__name__}: "
+                                    f"{str(e).splitlines()[0] if str(e) else ''})") from None
+
+    from motiongen.data.sources import open_dataset
+
+    dcfg = _dataset_config(cfg, loaded.config)
+    ds = open_dataset(dcfg, verbose=True)
+    test = [s for s in ds.splits.get("test", []) if s in ds.scenes]
+    if not test:
+        raise ConfigError(f"dataset {ds.root} has no test scenes (splits: "
+                          f"{ {k: len(v) for k, v in ds.splits.items()} }); set data.splits")
+    scenes = cfg.get("scenes")
+    if scenes is not None:
+        scenes = [scenes] if isinstance(scenes, (int, str)) else list(OmegaConf.to_container(scenes))
+        try:
+            scenes = [int(s) for s in scenes]
+        except (TypeError, ValueError):
+            raise ConfigError(f"scenes: expected a list of scene ids, got {scenes!r}") from None
+        unknown = [s for s in scenes if s not in test]
+        if unknown or not scenes:
+            raise ConfigError(f"scenes: {unknown or scenes} not among the test scenes of {ds.root} "
+                              f"({', '.join(str(s) for s in test)})")
+    else:
+        scenes = test
+    if set(loaded.joint_set.names) != set(ds.joint_set.names):
+        raise ConfigError(f"the checkpoint's joints ({len(loaded.joint_set.names)}) differ from the dataset's "
+                          f"({len(ds.joint_set.names)}): evaluate on the data it was trained on")
+
+    pc = ProtocolConfig(k=k, pairs=npairs, interaction_pairs=int(cfg.interaction_pairs),
+                        static_actions=tuple(OmegaConf.to_container(cfg.static_actions)),
+                        dynamic_action=str(cfg.dynamic_action), action_seconds=float(cfg.action_seconds),
+                        min_distance=float(cfg.min_distance), body_radius=float(cfg.body_radius),
+                        subgoal_spacing=float(cfg.subgoal_spacing), max_episodes=int(cfg.max_episodes),
+                        seed=int(cfg.seed), pskl_frames=int(cfg.pskl_frames))
+    progress = bool(cfg.get("progress", True))
+    ev = evaluate(loaded, ds, scenes, pc, settings, sampler, progress=progress, log=lambda m: print(m, flush=True))
+
+    meta = {"ckpt": str(ckpt), "step": loaded.step, "dataset": str(ds.root), "scenes": scenes, "k": k,
+            "pairs": npairs, "sampler": sampler.sampler, "steps": sampler.steps, "eta": sampler.eta,
+            "guidance_scale": sampler.guidance_scale, "seed": int(cfg.seed), "settings": settings,
+            "protocol": {k_: (list(v) if isinstance(v, tuple) else v) for k_, v in pc.__dict__.items()},
+            "device": device, "torch_threads": torch.get_num_threads()}
+    report = build_report(ev, meta)
+    md = markdown(report)
+
+    out = Path(cfg.out) if cfg.get("out") else Path(default_out)
+    out.mkdir(parents=True, exist_ok=True)
+    stage = _Staging(out)
+    images: dict[str, Path] = {}
+    try:
+        if bool(cfg.get("plots", True)):
+            from motiongen.eval.plots import plot_metric_bars, plot_scene_pairs
+
+            spec = [(k_, lab, u, a) for k_, lab, u, a in METRICS]
+            for st in settings:
+                block = report["settings"][st]
+                if not block["pairs"]:
+                    continue
+                name = f"plots/{st}_metrics.png"
+                plot_metric_bars(stage.tmp(name), {"model": block["model"], "reference": block["reference"]},
+                                 [x for x in spec if st == "dynamic" or x[0] not in DYNAMIC_ONLY],
+                                 title=f"{st} setting: model vs reference")
+                images[f"{st}/metrics"] = out / name
+                for sid in scenes:
+                    rs = [r for r in ev.results[st] if r.pair.scene == sid]
+                    if rs:
+                        name = f"plots/{st}_scene{sid}.png"
+                        plot_scene_pairs(stage.tmp(name), ev.contexts[sid].fmap, rs,
+                                         title=f"{st} — scene {sid} — {ckpt.name} step {loaded.step}")
+                        images[f"{st}/scene{sid}"] = out / name
+        stage.tmp("report.json").write_text(json.dumps(report, indent=1, ensure_ascii=False))
+        stage.tmp("report.md").write_text(md)
+        written = stage.commit()
+    except BaseException:
+        stage.abort()
+        raise
+    if cfg.get("run_dir"):
+        report["_markdown"] = md
+        log_tensorboard(Path(str(cfg.run_dir)), report, images, loaded.step)
+        report.pop("_markdown")
+    print(md, flush=True)
+    print(f"wrote {len(written)} files to {out} (report.json, report.md, plots/)" +
+          (f"; logged to TensorBoard in {cfg.run_dir}" if cfg.get("run_dir") else ""), flush=True)
+    return report
+
+
+__all__ = ["METRICS", "build_report", "markdown", "log_tensorboard", "run"]

@@ -1,0 +1,245 @@
+"""Skeleton videos: a top-down map and a follow camera, rendered with matplotlib (Agg).
+
+Left panel: the scene's obstacles seen from above (from the occupancy grid), the planned path,
+subgoals and goals, the trajectory so far, and the skeleton, in a window that follows the
+body. Right panel: a perspective camera behind and above the body (heading smoothed so the
+camera does not shake with every step), with a floor grid, obstacles as height columns and
+the goals.
+
+Speed: one figure is built once and only artists' data change per frame; frames are
+downsampled to `video_fps` (default 15). Written as mp4 through imageio-ffmpeg when it is
+available, otherwise as a gif.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from motiongen.skeleton import BODY_PARENTS, LEFT_HIP, PELVIS, RIGHT_HIP
+
+SAMPLE_COLOURS = ("#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf")
+
+
+def ffmpeg_available() -> bool:
+    try:
+        import imageio_ffmpeg
+
+        return Path(imageio_ffmpeg.get_ffmpeg_exe()).exists()
+    except Exception:  # not installed or no binary for this platform
+        return False
+
+
+def video_suffix() -> str:
+    """'.mp4' when imageio-ffmpeg can write it, else '.gif'."""
+    return ".mp4" if ffmpeg_available() else ".gif"
+
+
+def obstacle_columns(walkable=None, grid=None, cell: float = 0.1) -> np.ndarray:
+    """(N, 3) obstacle columns (x, z, top height) on a `cell`-metre lattice, from an
+    OccupancyGrid (`grid`) or, lacking it, a WalkableMap's blocked cells (height 1 m)."""
+    if grid is not None:
+        dense = np.asarray(grid.dense())                                                     # (X, Y, Z)
+        f = max(1, int(round(cell / grid.voxel_size)))
+        X, Y, Z = dense.shape
+        Xc, Zc = X // f, Z // f
+        if Xc == 0 or Zc == 0:
+            return np.zeros((0, 3))
+        ys = grid.origin[1] + (np.arange(Y) + 1) * grid.voxel_size                          # (Y,) voxel tops
+        occ = dense[:Xc * f, :, :Zc * f].reshape(Xc, f, Y, Zc, f).any(axis=(1, 4))          # (Xc, Y, Zc)
+        occ[:, ys <= 0.02, :] = False                                                       # ignore a floor slab
+        top = np.where(occ.any(1), ys[np.argmax(np.where(occ, np.arange(Y)[None, :, None], -1), axis=1)], 0.0)
+        i, k = np.nonzero(occ.any(1))
+        x = grid.origin[0] + (i + 0.5) * f * grid.voxel_size
+        z = grid.origin[2] + (k + 0.5) * f * grid.voxel_size
+        return np.stack([x, z, top[i, k]], -1)
+    if walkable is not None:
+        f = max(1, int(round(cell / walkable.cell)))
+        X, Z = walkable.open.shape
+        blocked = ~walkable.open[: X // f * f, : Z // f * f].reshape(X // f, f, Z // f, f).all(axis=(1, 3))
+        i, k = np.nonzero(blocked)
+        return np.stack([walkable.origin[0] + (i + 0.5) * f * walkable.cell,
+                         walkable.origin[1] + (k + 0.5) * f * walkable.cell, np.ones(len(i))], -1)
+    return np.zeros((0, 3))
+
+
+def _heading(joints: np.ndarray, fps: float, tau: float = 0.8) -> np.ndarray:
+    """(T,) camera yaw: the body's facing from the hips, exponentially smoothed (time constant
+    tau seconds) on the unit circle so the camera turns calmly."""
+    across = joints[:, LEFT_HIP] - joints[:, RIGHT_HIP]                                      # (T, 3)
+    f = np.stack([-across[:, 2], across[:, 0]], -1)                                          # forward (x, z)
+    f /= np.maximum(np.linalg.norm(f, axis=-1, keepdims=True), 1e-9)
+    a = 1 - math.exp(-1.0 / (fps * tau))
+    out = np.empty_like(f)
+    out[0] = f[0]
+    for t in range(1, len(f)):
+        v = out[t - 1] + a * (f[t] - out[t - 1])
+        out[t] = v / max(np.linalg.norm(v), 1e-9)
+    return np.arctan2(out[:, 0], out[:, 1])
+
+
+class _Camera:
+    """Pinhole camera behind the body looking at the pelvis: world (N, 3) -> image (N, 2), depth."""
+
+    def __init__(self, target: np.ndarray, yaw: float, dist: float = 3.2, height: float = 1.9, focal: float = 1.6):
+        fwd = np.array([math.sin(yaw), 0.0, math.cos(yaw)])
+        self.eye = target + np.array([0.0, height - target[1], 0.0]) - dist * fwd
+        look = target + np.array([0.0, 0.9 - target[1], 0.0]) - self.eye
+        z = look / np.linalg.norm(look)
+        x = np.cross(np.array([0.0, 1.0, 0.0]), z)
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        self.R = np.stack([-x, y, z])          # image x to the right: world-left is body +x
+        self.focal = focal
+
+    def project(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        c = (p - self.eye) @ self.R.T                                                        # (N, 3)
+        d = c[:, 2]
+        uv = self.focal * c[:, :2] / np.maximum(d, 1e-3)[:, None]
+        return uv, d
+
+
+def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequence[int] = BODY_PARENTS,
+                 grid=None, walkable=None, path_xz: np.ndarray | None = None, subgoals: np.ndarray | None = None,
+                 goals: np.ndarray | None = None, video_fps: float = 15.0, size: tuple[int, int] = (800, 352),
+                 title: str = "", max_frames: int = 450) -> Path:
+    """Render joints (S, T, J, 3) (or (T, J, 3)) to `path` (.mp4, or .gif when ffmpeg is missing
+    or the suffix asks for it). Sample 0 drives the cameras; others are drawn alongside.
+    Returns the path actually written (the suffix may change to .gif)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import LineCollection
+    from matplotlib.figure import Figure
+
+    path = Path(path)
+    if path.suffix.lower() != ".gif" and not ffmpeg_available():
+        path = path.with_suffix(".gif")
+    joints = np.asarray(joints, np.float64)
+    if joints.ndim == 3:
+        joints = joints[None]
+    S, T, J, _ = joints.shape
+    # Long motions get a lower frame rate rather than a long render: at most max_frames frames.
+    step = max(1, int(round(fps / video_fps)), int(math.ceil(T / max_frames)))
+    frames_idx = np.arange(0, T, step)
+    out_fps = fps / step
+    parents = list(parents)[:J]
+    bones = [(j, p) for j, p in enumerate(parents) if p >= 0]
+
+    W, H = size
+    dpi = 80
+    fig = Figure(figsize=(W / dpi, H / dpi), dpi=dpi)
+    FigureCanvasAgg(fig)
+    ax_top = fig.add_axes([0.01, 0.02, 0.42, 0.9])
+    ax_cam = fig.add_axes([0.45, 0.02, 0.54, 0.9])
+    if title:
+        fig.text(0.01, 0.95, title, fontsize=9)
+    time_text = fig.text(0.99, 0.95, "", fontsize=9, ha="right")
+
+    # -- top-down panel: static layers once --------------------------------------------
+    if walkable is not None:
+        (x0, z0), (x1, z1) = walkable.bounds
+        img = np.where(walkable.open, 1.0, 0.25)
+        img = np.where(walkable.open & ~walkable.free, 0.85, img)
+        ax_top.imshow(img.T, origin="lower", extent=(x0, x1, z0, z1), cmap="gray", vmin=0, vmax=1,
+                      interpolation="nearest")
+    if path_xz is not None and len(path_xz):
+        ax_top.plot(path_xz[:, 0], path_xz[:, 1], "--", color="#777777", lw=1)
+    if subgoals is not None and len(subgoals):
+        ax_top.plot(subgoals[:, 0], subgoals[:, 1], ".", color="#777777", ms=3)
+    if goals is not None and len(goals):
+        ax_top.plot(goals[:, 0], goals[:, 1], "*", color="#ffbf00", ms=12, mec="k", mew=0.5)
+    ax_top.set_aspect("equal")
+    ax_top.invert_yaxis()            # seen from above (+y): x right, z down
+    ax_top.set_xticks([])
+    ax_top.set_yticks([])
+    trails = [ax_top.plot([], [], "-", color=SAMPLE_COLOURS[s % 8], lw=1, alpha=0.7)[0] for s in range(S)]
+    top_bones = [LineCollection([], colors=SAMPLE_COLOURS[s % 8], linewidths=1.5) for s in range(S)]
+    for lc in top_bones:
+        ax_top.add_collection(lc)
+
+    # -- camera panel ------------------------------------------------------------------
+    columns = obstacle_columns(walkable, grid, cell=0.2)                                             # (N, 3)
+    pel = joints[0, :, PELVIS]                                                               # (T, 3)
+    lo = np.minimum(pel[:, [0, 2]].min(0), goals.min(0) if goals is not None and len(goals) else np.inf) - 4
+    hi = np.maximum(pel[:, [0, 2]].max(0), goals.max(0) if goals is not None and len(goals) else -np.inf) + 4
+    gx = np.arange(math.floor(lo[0]), math.ceil(hi[0]) + 1, 1.0)
+    gz = np.arange(math.floor(lo[1]), math.ceil(hi[1]) + 1, 1.0)
+    grid_segs = [np.array([[x, 0, z0_], [x, 0, z1_]]) for x in gx for z0_, z1_ in zip(gz[:-1], gz[1:])] + \
+                [np.array([[x0_, 0, z], [x1_, 0, z]]) for z in gz for x0_, x1_ in zip(gx[:-1], gx[1:])]
+    grid_segs = np.stack(grid_segs) if grid_segs else np.zeros((0, 2, 3))                   # (N, 2, 3)
+    col_segs = np.stack([np.stack([columns[:, 0], np.zeros(len(columns)), columns[:, 1]], -1),
+                         np.stack([columns[:, 0], columns[:, 2], columns[:, 1]], -1)], 1)    # (N, 2, 3)
+    cam_floor = LineCollection([], colors="#bbbbbb", linewidths=0.6)
+    cam_cols = LineCollection([], colors="#6b7b8c", linewidths=2.0, alpha=0.6)
+    ax_cam.add_collection(cam_floor)
+    ax_cam.add_collection(cam_cols)
+    cam_path = ax_cam.plot([], [], "--", color="#777777", lw=1)[0]
+    cam_goals = ax_cam.plot([], [], "*", color="#ffbf00", ms=12, mec="k", mew=0.5)[0]
+    cam_bones = [LineCollection([], colors=SAMPLE_COLOURS[s % 8], linewidths=2.5) for s in range(S)]
+    for lc in cam_bones:
+        ax_cam.add_collection(lc)
+    ax_cam.set_xlim(-1.0, 1.0)
+    ax_cam.set_ylim(-0.8, 0.8)
+    ax_cam.set_aspect("equal")
+    ax_cam.set_xticks([])
+    ax_cam.set_yticks([])
+    ax_cam.set_facecolor("#f4f1ea")
+
+    heading = _heading(joints[0], fps)
+    path3 = None if path_xz is None else np.stack([path_xz[:, 0], np.zeros(len(path_xz)), path_xz[:, 1]], -1)
+    goals3 = None if goals is None or not len(goals) else np.stack([goals[:, 0], np.zeros(len(goals)), goals[:, 1]], -1)
+    bone_idx = np.array(bones)                                                               # (B, 2)
+
+    def proj_segments(cam, segs):                                                           # (N, 2, 3) -> (M, 2, 2)
+        if not len(segs):
+            return np.zeros((0, 2, 2))
+        uv, d = cam.project(segs.reshape(-1, 3))
+        uv, d = uv.reshape(-1, 2, 2), d.reshape(-1, 2)
+        ok = (d > 0.2).all(1) & (np.abs(uv) < 4).all(axis=(1, 2))
+        return uv[ok]
+
+    rendered = []
+    for t in frames_idx:
+        p = joints[0, t, PELVIS]
+        half = 2.5
+        ax_top.set_xlim(p[0] - half, p[0] + half)
+        ax_top.set_ylim(p[2] + half * 0.95, p[2] - half * 0.95)
+        for s in range(S):
+            trails[s].set_data(joints[s, : t + 1, PELVIS, 0], joints[s, : t + 1, PELVIS, 2])
+            seg = joints[s, t][bone_idx][..., [0, 2]]                                        # (B, 2, 2)
+            top_bones[s].set_segments(seg)
+        cam = _Camera(p, heading[t])
+        cam_floor.set_segments(proj_segments(cam, grid_segs))
+        cam_cols.set_segments(proj_segments(cam, col_segs))
+        if path3 is not None:
+            uv, d = cam.project(path3)
+            uv = np.where((d > 0.2)[:, None], uv, np.nan)
+            cam_path.set_data(uv[:, 0], uv[:, 1])
+        if goals3 is not None:
+            uv, d = cam.project(goals3)
+            uv = uv[d > 0.2]
+            cam_goals.set_data(uv[:, 0], uv[:, 1])
+        for s in range(S):
+            uv, d = cam.project(joints[s, t])
+            segs = uv[bone_idx]
+            cam_bones[s].set_segments(segs[(d[bone_idx] > 0.2).all(1)])
+        time_text.set_text(f"{t / fps:5.1f} s")
+        fig.canvas.draw()
+        rendered.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    import imageio.v2 as imageio
+
+    if path.suffix.lower() == ".gif":
+        imageio.mimsave(path, rendered, format="GIF", duration=1.0 / out_fps, loop=0)
+    else:
+        with imageio.get_writer(path, format="FFMPEG", fps=out_fps, codec="libx264", quality=6,
+                                macro_block_size=16, ffmpeg_log_level="error") as w:
+            for fr in rendered:
+                w.append_data(fr)
+    return path

@@ -1,0 +1,148 @@
+"""The evaluation protocol: pairs (deterministic, valid), the reference row on dataset motion,
+and `evaluate.py` end to end on a tiny checkpoint, including its user errors."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from motiongen.data.sources import DataConfig, open_dataset
+from motiongen.eval.protocol import SETTINGS, ProtocolConfig, SceneContext, make_pairs, reference_metrics
+from motiongen.eval.report import METRICS
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ["model.width=32", "model.layers=1", "model.heads=2", "model.ff=64", "model.scene_width=32",
+        "model.scene_layers=1", "model.scene_heads=2", "model.scene_ff=64", "model.action_width=32",
+        "model.action_layers=1", "model.action_heads=2", "model.action_ff=64"]
+NAMES = ["walk", "stand", "sit", "lie down", "pick up", "carry"]
+
+
+@pytest.fixture(scope="module")
+def ds():
+    return open_dataset(DataConfig(source="synthetic", size="small"), verbose=False)
+
+
+@pytest.fixture(scope="module")
+def ctxs(ds):
+    return {sid: SceneContext(ds, sid) for sid in (91, 92)}
+
+
+def test_pairs_deterministic_and_valid(ctxs):
+    cfg = ProtocolConfig(pairs=5, seed=3)
+    for sid, ctx in ctxs.items():
+        for st in SETTINGS:
+            a = make_pairs(ctx, st, cfg, NAMES)
+            b = make_pairs(SceneContext(ctx.ds, sid), st, cfg, NAMES)
+            assert [p.describe() for p in a] == [p.describe() for p in b]
+            for p in a:
+                assert ctx.fmap.is_free(p.start)                                  # start on free floor
+                assert np.linalg.norm(p.goal.xz - p.start) >= cfg.min_distance / 2
+                if p.goal.interacts:
+                    assert p.goal.action in ("sit", "lie down", "pick up")
+                else:
+                    assert ctx.fmap.is_free(p.goal.xz)
+                # The A* route is collision-free: every leg segment on free floor (the last
+                # piece onto an interaction goal may leave the clearance margin).
+                path = p.route.path
+                segs = len(path) - 1 - (1 if p.goal.interacts else 0)
+                assert all(ctx.fmap.segment_free(path[i], path[i + 1]) for i in range(segs))
+                np.testing.assert_allclose(p.route.subgoals[-1], p.goal.xz)
+    # Scene 91's data sits somewhere: the static setting sends some pairs there; 92 picks up.
+    assert any(p.goal.action == "sit" for p in make_pairs(ctxs[91], "static", cfg, NAMES))
+    dyn = make_pairs(ctxs[92], "dynamic", cfg, NAMES)
+    assert len(dyn) == 5 and all(p.object_id is not None and p.goal.action == "pick up" for p in dyn)
+    # Another seed gives other pairs.
+    other = make_pairs(ctxs[92], "static", ProtocolConfig(pairs=5, seed=4), NAMES)
+    assert [p.describe() for p in other] != [p.describe() for p in make_pairs(ctxs[92], "static", cfg, NAMES)]
+
+
+def test_reference_row_is_sane(ctxs):
+    cfg = ProtocolConfig()
+    st = reference_metrics(ctxs[91], "static", cfg, 42).per_sequence
+    dy = reference_metrics(ctxs[92], "dynamic", cfg, 42).per_sequence
+    for m in st + dy:
+        assert m["foot_skating"] < 0.05                    # procedural feet are planted
+        assert m["penetration_frames"] < 0.02 and m["floor_penetration_frames"] == 0.0
+        assert 5 < m["jerk"] < 200
+    # The "sit" label also covers sitting down and standing up, when the pelvis is still in
+    # the air: about half of the labelled frames touch the seat, all of the seated ones do.
+    hits, frames = sum(m["_contact_hits"] for m in st), sum(m["_contact_frames"] for m in st)
+    assert frames > 0 and hits / frames > 0.4
+    hits, frames = sum(m["_contact_hits"] for m in dy), sum(m["_contact_frames"] for m in dy)
+    assert frames > 0 and hits / frames > 0.5
+    assert all(m["object_dist_m"] < 0.05 for m in dy if "object_dist_m" in m)
+
+
+# ---------------------------------------------------------------------------------------
+# evaluate.py end to end
+
+
+def _run(script, args, timeout=300):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.run([sys.executable, str(ROOT / script), *args], capture_output=True, text=True, env=env,
+                          cwd=ROOT, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def ckpt(tmp_path_factory):
+    run = tmp_path_factory.mktemp("train")
+    r = _run("train.py", ["data=small", f"hydra.run.dir={run}", "train.max_steps=100", "train.batch_size=8",
+                          "train.num_workers=0", "train.val_every=0", "train.figure_every=0", "train.ckpt_every=100",
+                          "train.progress=false", "train.threads=1", *TINY])
+    assert r.returncode == 0, r.stderr[-2000:]
+    return run / "checkpoints" / "last.pt"
+
+
+EVAL = ["scenes=[92]", "pairs=1", "k=2", "steps=2", "max_episodes=6", "threads=1", "progress=false"]
+
+
+def test_evaluate_end_to_end(ckpt, tmp_path):
+    out = tmp_path / "ev"
+    r = _run("evaluate.py", [f"ckpt={ckpt}", f"out={out}", f"run_dir={tmp_path / 'tb'}", *EVAL])
+    assert r.returncode == 0, r.stderr[-3000:]
+    rep = json.loads((out / "report.json").read_text())
+    md = (out / "report.md").read_text()
+    keys = [k for k, *_ in METRICS]
+    for st in SETTINGS:
+        block = rep["settings"][st]
+        assert len(block["pairs"]) == 1 and len(block["pairs"][0]["samples"]) == 2
+        for row in ("model", "reference"):
+            missing = [k for k in keys if k not in block[row] and (st == "dynamic" or k != "object_dist_m")]
+            assert not missing, (st, row, missing)
+        assert block["reference"]["goal_dist_m"] is None and block["reference"]["apd_m"] is None
+        assert block["model"]["apd_m"] is not None and block["model"]["foot_skating"] is not None
+        assert f"## {st} setting" in md and (out / "plots" / f"{st}_scene92.png").is_file()
+    assert md.count("| model |") == 2 and md.count("| reference |") == 2
+    assert not list(out.glob(".tmp-*")) and any((tmp_path / "tb").iterdir())
+    # Deterministic: same seed, same numbers.
+    out2 = tmp_path / "ev2"
+    r = _run("evaluate.py", [f"ckpt={ckpt}", f"out={out2}", "plots=false", "settings=[static]", *EVAL])
+    assert r.returncode == 0, r.stderr[-3000:]
+    rep2 = json.loads((out2 / "report.json").read_text())
+    assert rep2["settings"]["static"]["model"] == {**rep["settings"]["static"]["model"],
+                                                   "seconds_per_pair": rep2["settings"]["static"]["model"]["seconds_per_pair"]}
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["ckpt=/nonexistent/x.pt"], "does not exist"),
+    (["scenes=[5]"], "not among the test scenes"),
+    (["scenes=[1234]"], "not among the test scenes"),
+    (["settings=[bogus]"], "settings"),
+    (["data=dataset", "data.root=NOTEST"], "no test scenes"),
+])
+def test_evaluate_user_errors(ckpt, tmp_path, args, needle):
+    if "data.root=NOTEST" in args:
+        from tests.helpers import make_dataset
+
+        root = make_dataset(tmp_path / "notest", scenes=(1, 71), seqs_per_scene=1, T=60)
+        args = [a.replace("NOTEST", str(root)) for a in args]
+    a = [f"ckpt={ckpt}", f"out={tmp_path}", *args] if not args[0].startswith("ckpt=") else [f"out={tmp_path}", *args]
+    r = _run("evaluate.py", a, timeout=120)
+    assert r.returncode == 2, (r.stdout[-1000:], r.stderr[-1000:])
+    lines = [x for x in r.stderr.strip().splitlines() if x.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:") and needle in lines[0], r.stderr
+    assert "Traceback" not in r.stderr

@@ -1,0 +1,114 @@
+"""sample.py end to end: outputs written atomically, and every bad input -> one line, exit 2."""
+
+import json
+import os
+import subprocess
+import sys
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _checkpoint(path: Path) -> Path:
+    """A checkpoint of a random-init very small model in train.py's format (the CLI's
+    mechanics do not depend on training; tests/test_sampling.py covers the loop)."""
+    from motiongen.config import WindowNode
+    from motiongen.data.sources import DataConfig
+    from motiongen.diffusion import DiffusionConfig, MaskConfig
+    from motiongen.models import build_model, model_config
+    from motiongen.skeleton import BODY
+
+    mcfg = model_config("tiny", width=32, layers=1, heads=2, ff=64, scene_width=32, scene_layers=1, scene_heads=2,
+                        scene_ff=64, action_width=32, action_layers=1, action_heads=2, action_ff=64)
+    torch.manual_seed(0)
+    model = build_model(mcfg, 22, 2, 16)
+    center = np.zeros(66, np.float32)
+    center[1::3] = 0.9
+    cfg = {"model": asdict(mcfg), "diffusion": asdict(DiffusionConfig()), "window": asdict(WindowNode()),
+           "mask": asdict(MaskConfig()), "data": asdict(DataConfig(source="dataset", root=str(path.parent)))}
+    state = {"format": "motiongen-checkpoint", "config": cfg, "step": 0, "joint_names": list(BODY.names),
+             "action_names": ["walk", "sit"], "stats": {"center": center.tolist(), "half_range": [1.5] * 66},
+             "ema": model.state_dict(), "model": model.state_dict()}
+    torch.save(state, path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli")
+    ck = _checkpoint(d / "tiny.pt")
+    import trimesh
+
+    # A 4 x 4 m floor with a 1 m box at the centre and a wall splitting off z > 1.1.
+    box = trimesh.creation.box([1.0, 1.0, 1.0], trimesh.transformations.translation_matrix([0, 0.5, 0]))
+    wall = trimesh.creation.box([4.0, 1.5, 0.2], trimesh.transformations.translation_matrix([0, 0.75, 1.0]))
+    floor = trimesh.creation.box([4.0, 0.02, 4.0], trimesh.transformations.translation_matrix([0, -0.01, 0]))
+    scene = d / "room.obj"
+    trimesh.util.concatenate([box, wall, floor]).export(scene)
+    (d / "bad.ckpt").write_bytes(b"not a checkpoint")
+    (d / "goals.json").write_text(json.dumps({"goals": [[1.5, -1.0], {"xz": [-1.5, 0.5], "action": "sit", "duration": 0.5}]}))
+    (d / "bad.json").write_text('{"goals": [[1.0]]}')
+    return {"ckpt": ck, "scene": scene, "dir": d}
+
+
+def _popen(args, env_extra):
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1", **env_extra)
+    return subprocess.Popen([sys.executable, str(ROOT / "sample.py"), *args], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def test_end_to_end_writes_all_outputs(files, tmp_path):
+    out = tmp_path / "out"
+    p = _popen([f"ckpt={files['ckpt']}", f"scene={files['scene']}", "start=[-1.5,-1.5]",
+                f"goals_file={files['dir'] / 'goals.json'}", "steps=2", "num_samples=2", "bvh=true",
+                "loop.max_episodes=6", "loop.warmup=1", "video_fps=5", f"out={out}", "threads=1"],
+               {"MOTIONGEN_CACHE": os.environ["MOTIONGEN_CACHE"]})
+    stdout, stderr = p.communicate(timeout=300)
+    assert p.returncode == 0, stderr[-2000:]
+    names = sorted(f.name for f in out.iterdir())
+    video = "motion.mp4" if "motion.mp4" in names else "motion.gif"
+    assert names == sorted(["motion.npz", video, "trajectories.png", "summary.json", "motion_0.bvh", "motion_1.bvh"])
+    with np.load(out / "motion.npz", allow_pickle=False) as z:
+        assert z["joints"].shape[0] == 2 and z["joints"].shape[2:] == (22, 3) and float(z["fps"]) == 30.0
+        assert z["goals"].shape == (2, 2) and list(z["goal_actions"]) == ["", "sit"]
+        assert z["actions"].shape == z["joints"].shape[:2] and z["path"].shape[1] == 2
+        assert z["episode_starts"][0] == 0 and z["arrival_error"].shape == (2, 2)
+    assert "real-time factor" in stdout and "goal 1" in stdout
+    from motiongen.fit import load_input  # the fitting tool reads it
+
+    joints, fps, _ = load_input({"input": str(out / "motion.npz")})
+    assert joints.shape[0] == 2 and fps == 30.0
+
+
+BAD = {
+    "goal_in_obstacle": (["goals=[[0.0,0.0]]"], "inside an obstacle"),
+    "goal_outside": (["goals=[[9.0,0.0]]"], "outside the scene bounds"),
+    "no_path": (["goals=[[0.0,1.6]]"], "no collision-free path"),
+    "unknown_action": (["goals=[[1.5,-1.0]]", "actions=[dance]"], "unknown action 'dance'"),
+    "bad_ckpt": (["goals=[[1.5,-1.0]]", "ckpt={dir}/bad.ckpt"], "not a readable checkpoint"),
+    "missing_ckpt": (["goals=[[1.5,-1.0]]", "ckpt={dir}/none.pt"], "checkpoint file does not exist"),
+    "missing_scene": (["goals=[[1.5,-1.0]]", "scene={dir}/nothing.obj"], "scene mesh file or folder is missing"),
+    "bad_goals_file": (["goals_file={dir}/bad.json"], "goals[0]"),
+}
+
+
+def test_bad_inputs_exit_2_with_one_line(files, tmp_path):
+    procs = {}
+    for name, (extra, _) in BAD.items():
+        args = [f"ckpt={files['ckpt']}", f"scene={files['scene']}", "start=[-1.5,-1.5]", f"out={tmp_path / name}"]
+        args += [a.format(dir=files["dir"]) for a in extra]
+        procs[name] = _popen(args, {"MOTIONGEN_CACHE": os.environ["MOTIONGEN_CACHE"]})
+    for name, p in procs.items():
+        _, stderr = p.communicate(timeout=300)
+        assert p.returncode == 2, (name, stderr[-1500:])
+        lines = [ln for ln in stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1 and lines[0].startswith("error: "), (name, stderr[-1500:])
+        assert BAD[name][1] in lines[0], (name, lines[0])
+        assert "Traceback" not in stderr
+        out = tmp_path / name
+        assert not out.exists() or not any(out.iterdir()), (name, list(out.iterdir()))

@@ -1,0 +1,117 @@
+"""The autoregressive loop, checked with an oracle denoiser so that the loop's mechanics
+(frames, pinning, goals, seams, batching) are tested independently of how well a model
+trained: the oracle predicts the noise of a clean window that walks the last pinned pose in a
+straight line to the pinned goal — what a perfect model would do."""
+
+import types
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from motiongen.data.windows import NormStats, WindowConfig
+from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, MaskConfig
+from motiongen.errors import ConfigError
+from motiongen.sampling import Goal, LoopConfig, SamplerSettings, generate
+from motiongen.skeleton import BODY
+from tests.helpers import REST
+
+J, L = 22, 16
+
+
+class Oracle(nn.Module):
+    def __init__(self, diffusion, stats):
+        super().__init__()
+        self.p = nn.Parameter(torch.zeros(1))
+        self.diffusion, self.stats = diffusion, stats
+        self.scene_encoder = None
+        self.conditions = []
+
+    def forward(self, x_t, t, cond, known_mask=None):
+        B = x_t.shape[0]
+        x = self.stats.denormalize(x_t.detach().double()).reshape(B, L, J, 3)
+        m = known_mask.reshape(B, L, J, 3)
+        k = int(m[0, :, 1:].all(-1).all(-1).sum())                    # pinned transition frames
+        last = x[:, k - 1] if k else torch.as_tensor(REST, dtype=x.dtype).expand(B, J, 3)
+        goal = x[:, -1, 0, [0, 2]]                                     # (B, 2) pinned pelvis x, z
+        step = (goal - last[:, 0, [0, 2]]) / (L - max(k, 1))           # per frame
+        i = torch.arange(L, dtype=x.dtype) - max(k - 1, 0)             # frames after the last pinned one
+        x0 = last[:, None].repeat(1, L, 1, 1)
+        x0[..., 0] += (i[None, :, None] * step[:, None, None, 0])
+        x0[..., 2] += (i[None, :, None] * step[:, None, None, 1])
+        x0 = torch.where(m, x, x0)
+        x0n = self.stats.normalize(x0.reshape(B, L, J * 3)).to(x_t.dtype)
+        return self.diffusion.eps_from_x0(x_t, x0n, t)
+
+
+def _loaded():
+    diffusion = GaussianDiffusion(DiffusionConfig(clip_x0=1e6))  # no clipping: world offsets leave [-1, 1]
+    stats = NormStats(np.zeros(J * 3, np.float32), np.full(J * 3, 2.0, np.float32))
+    return types.SimpleNamespace(model=Oracle(diffusion, stats).eval(), diffusion=diffusion, stats=stats,
+                                 joint_set=BODY, action_names=["walk", "sit"], window=WindowConfig(),
+                                 mask=MaskConfig(max_transition=2), device=torch.device("cpu"))
+
+
+def _seam_ratio(motion):
+    disp = np.linalg.norm(np.diff(motion.joints, axis=1), axis=-1).max(-1)          # (S, T-1)
+    seams = motion.episode_starts[1:]
+    seams = seams[(seams > 0) & (seams < disp.shape[1])]
+    seam_max = disp[:, seams - 1].max()
+    rest = np.delete(disp, seams - 1, axis=1)
+    return seam_max / np.median(rest)
+
+
+def test_reaches_goals_in_empty_scene_with_continuous_seams():
+    goals = [Goal([1.5, 2.0]), Goal([-1.0, 4.0]), Goal([0.0, 6.0], "sit", 1.0)]
+    m = generate(_loaded(), None, (0.0, 0.0), goals, num_samples=2, generator=torch.Generator().manual_seed(0),
+                 sampler=SamplerSettings("ddim", 5), loop=LoopConfig(tolerance=0.2))
+    assert m.completed
+    assert m.joints.shape[0] == 2 and m.joints.shape[2:] == (J, 3) and m.fps == 30.0
+    assert np.all(m.arrival_error < 0.2) and np.all(m.arrival_error_body < 0.2)
+    # The pelvis at each arrival frame is at the goal; goals are reached in order.
+    assert np.all(np.diff(m.arrival_frame, axis=1) > 0)
+    assert _seam_ratio(m) <= 2.0
+    # Interactions hold the position with their label for about their duration.
+    sit = m.action_names.index("sit")
+    assert (m.actions == sit).sum(1).min() >= 0.9 * 30
+    # Long routes need several episodes; look-ahead keeps the walk near the model's reach.
+    assert len(m.episode_starts) > 5
+
+
+def test_pinned_transition_frames_equal_previous_frames():
+    m = generate(_loaded(), None, (0.0, 0.0), [Goal([0.5, 3.0])], generator=torch.Generator().manual_seed(1),
+                 sampler=SamplerSettings("ddpm", 10, eta=1.0))
+    eps = m.episodes
+    assert len(eps) >= 3
+    for prev, cur in zip(eps[:-1], eps[1:]):
+        k = cur.transition
+        assert k == 2
+        np.testing.assert_allclose(cur.window[:, :k], prev.window[:, L - k:], atol=2e-5)
+        # The new window starts at its first frame's canonical frame: pelvis at the origin.
+        local = np.linalg.inv(cur.to_world[0]) @ np.append(cur.window[0, 0, 0], 1.0)
+        np.testing.assert_allclose(local[[0, 2]], 0.0, atol=1e-5)
+
+
+def test_far_targets_are_clamped_and_lookahead_off_uses_every_subgoal():
+    ld = _loaded()
+    m = generate(ld, None, (0.0, 0.0), [Goal([0.0, 4.0])], path="straight", subgoal_spacing=3.0,
+                 generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 3))
+    walk = [e for e in m.episodes if e.kind == "walk"]
+    reach = 0.7 * 2.0
+    for e in walk:
+        frame0 = e.window[0, e.transition - 1, 0, [0, 2]]
+        assert np.linalg.norm(e.window[0, -1, 0, [0, 2]] - frame0) <= reach + 0.3
+    m2 = generate(ld, None, (0.0, 0.0), [Goal([0.0, 2.4])], subgoal_spacing=0.6,
+                  generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 3),
+                  loop=LoopConfig(lookahead=False))
+    assert sum(e.kind == "walk" for e in m2.episodes) >= 4
+
+
+def test_max_episodes_warns_and_unknown_action_errors():
+    with pytest.warns(UserWarning, match="stopped after max_episodes=2"):
+        m = generate(_loaded(), None, (0.0, 0.0), [Goal([0.0, 8.0])], sampler=SamplerSettings("ddim", 2),
+                     loop=LoopConfig(max_episodes=2))
+    assert not m.completed and np.isnan(m.arrival_error).all()
+    with pytest.raises(ConfigError, match="knows: walk, sit"):
+        generate(_loaded(), None, (0.0, 0.0), [Goal([0.0, 1.0], "dance")])
