@@ -107,3 +107,13 @@ def test_user_errors_exit_2(dataset, tmp_path):
     assert r.returncode == 2 and "no_such_dataset" in r.stderr and "Traceback" not in r.stderr
     r = _run(_args(dataset, tmp_path, 4, **{"train.batch_size": 100000}))
     assert r.returncode == 2 and "batch_size" in r.stderr
+
+
+def test_non_finite_loss_stops_and_keeps_last_checkpoint(dataset, tmp_path):
+    # lr 1e20 without clipping: step 1 is finite (weights jump to ~1e20), step 2 overflows.
+    r = _run(_args(dataset, tmp_path, 10, **{"train.lr": 1e20, "train.grad_clip": 0, "train.ckpt_every": 1,
+                                              "train.log_every": 1}))
+    assert r.returncode == 2 and "non-finite" in r.stderr and "Traceback" not in r.stderr
+    ck = _weights(tmp_path / "checkpoints" / "last.pt")
+    assert ck["step"] == 1
+    assert all(torch.isfinite(v).all() for v in ck["model"].values() if v.is_floating_point())
