@@ -46,10 +46,11 @@ def register_configs() -> None:
     from motiongen.diffusion import DiffusionConfig, MaskConfig
     from motiongen.models import PRESETS
 
-    # paper: linear β 1e-4 → 0.02 over 100 steps (supplement A.2); samplers start from the
-    # marginal that schedule really ends at. default: cosine, which ends at pure noise.
+    # paper: linear β 1e-4 → 0.02 over 100 steps, ε-prediction (supplement A.2); samplers start
+    # from the marginal that schedule really ends at. default: cosine (ends at pure noise), x0.
     diffusion_presets = {"default": DiffusionConfig(),
-                         "paper": DiffusionConfig(schedule="linear", beta_start=1e-4, beta_end=0.02)}
+                         "paper": DiffusionConfig(schedule="linear", beta_start=1e-4, beta_end=0.02,
+                                                  prediction="eps")}
 
     cs = ConfigStore.instance()
     for name, preset in PRESETS.items():

@@ -119,7 +119,7 @@ def test_prediction_conversions_round_trip(prediction):
 
 # -- training loss ------------------------------------------------------------------------
 def test_training_loss_shows_clean_known_entries_and_ignores_them():
-    d = GaussianDiffusion()
+    d = _diff(prediction="eps")
     seen = {}
 
     def model(x, t, cond, known_mask=None):
@@ -137,7 +137,7 @@ def test_training_loss_shows_clean_known_entries_and_ignores_them():
     expect = torch.nn.functional.huber_loss(torch.zeros_like(noise), noise, reduction="none")[~mask].mean()
     torch.testing.assert_close(out["loss"], expect)
     assert set(out) >= {"loss", "huber_eps", "mse_eps"}
-    mse = _diff(loss="mse").training_losses(model, x0, t, None, known_mask=mask, noise=noise)["loss"]
+    mse = _diff(loss="mse", prediction="eps").training_losses(model, x0, t, None, known_mask=mask, noise=noise)["loss"]
     torch.testing.assert_close(mse, (noise[~mask] ** 2).mean())
 
 
@@ -173,7 +173,7 @@ def test_trailing_timesteps():
 
 def test_ddpm_golden_three_steps():
     """DDPM with a linear dummy model on a 3-step schedule, against a hand computation."""
-    d = _diff(schedule="linear", steps=3, beta_start=0.1, beta_end=0.3, clip_x0=None)
+    d = _diff(schedule="linear", steps=3, beta_start=0.1, beta_end=0.3, clip_x0=None, prediction="eps")
     model = LinearModel(0.5, 0.01)
     g = torch.Generator().manual_seed(7)
     x = sample(d, model, (1, 1, 1), None, sampler="ddpm", steps=3, generator=torch.Generator().manual_seed(7))

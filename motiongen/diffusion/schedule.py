@@ -25,7 +25,10 @@ class DiffusionConfig:
     beta_end: float = 0.02           # linear only
     cosine_s: float = 0.008          # cosine offset
     zero_terminal_snr: bool = False  # Lin et al. 2024 rescaling: ᾱ_{T-1} = 0 exactly (needs v or x0)
-    prediction: str = "eps"          # "eps" (paper) | "x0" | "v"
+    # x0 by default: with eps, x̂0 = (x_t - √(1-ᾱ)ε̂)/√ᾱ amplifies errors ~2000x near ᾱ_T ≈ 0, and
+    # the demo model's DDIM-25 windows fell apart (1.1 m joint error, 1.2 m thighs) where x0
+    # prediction gives consistent bones and DDIM-25 == DDPM-100 (docs/diffusion.md).
+    prediction: str = "x0"           # "x0" | "eps" (paper) | "v"
     loss: str = "huber"              # "huber" (paper) | "mse"
     huber_delta: float = 1.0
     clip_x0: float | None = 1.0      # clamp predicted x0 to ±clip while sampling (data is in [-1, 1]); None = off
