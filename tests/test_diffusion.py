@@ -280,3 +280,15 @@ def test_start_matches_schedule_marginal():
     ab = d.terminal_alpha_bar
     assert float(starts[0].mean()) == pytest.approx(math.sqrt(ab) * 0.5, abs=0.02)
     assert float(starts[0].var()) == pytest.approx(1 - ab, rel=0.05)
+
+
+def test_channel_weights_give_a_weighted_mean_over_free_entries():
+    d = _diff(loss="mse", prediction="x0")
+    x0 = torch.zeros(2, 4, 6)
+    model = lambda x, t, cond, known_mask=None: torch.arange(6.0).expand(2, 4, 6)  # noqa: E731  error = channel index
+    mask = known_mask(2, 4, 2, transition=1)                       # first frame pinned
+    w = torch.tensor([10.0, 10.0, 10.0, 1.0, 1.0, 1.0])
+    out = d.training_losses(model, x0, torch.tensor([5, 9]), None, known_mask=mask, channel_weights=w)
+    sq = torch.arange(6.0) ** 2
+    torch.testing.assert_close(out["loss"], (sq * w).sum() / w.sum())       # same for every free frame
+    torch.testing.assert_close(out["mse_x0"], sq.mean())                    # logged MSE stays unweighted

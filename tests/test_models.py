@@ -120,11 +120,17 @@ def test_encoded_condition_matches_raw_and_concat():
 
 def test_mask_channels_change_the_output():
     model = _tiny(mask_channels=True)
-    assert model.input.in_features == 2 * J * 3
+    assert model.input.in_features == 3 * J * 3          # free entries | pinned entries | mask
     x, t, cond = torch.randn(1, L, J * 3), torch.tensor([3]), _cond(1)
     m = known_mask(1, L, J, transition=2, goal_xz=True)
     with torch.no_grad():
         assert not torch.allclose(model(x, t, cond, known_mask=m), model(x, t, cond))
+        # pinned values enter through their own columns: zeroing the free-entry columns leaves
+        # the output's dependence on a pinned value intact
+        model.input.weight[:, : J * 3] = 0
+        x2 = x.clone()
+        x2[0, -1, 0] += 1.0                                # move the pinned goal
+        assert not torch.allclose(model(x, t, cond, known_mask=m), model(x2, t, cond, known_mask=m))
 
 
 def test_condition_to_and_concat():

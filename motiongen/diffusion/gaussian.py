@@ -114,8 +114,12 @@ class GaussianDiffusion:
 
     def training_losses(self, model, x0: Tensor, t: Tensor, cond, known: Tensor | None = None,
                         known_mask: Tensor | None = None, noise: Tensor | None = None,
-                        generator: torch.Generator | None = None) -> dict[str, Tensor]:
+                        generator: torch.Generator | None = None,
+                        channel_weights: Tensor | None = None) -> dict[str, Tensor]:
         """Loss on the configured target over the free (not known) entries.
+
+        channel_weights (D,): optional per-channel weights of the loss (a weighted mean over the
+        free entries), e.g. to make the root trajectory count as much as the pose.
 
         x0 (B, L, D) clean; t (B,) long; known_mask (B, L, D) bool marks entries the caller
         pins. Those entries of x_t hold the clean values (``known``, default x0) — exactly what
@@ -135,14 +139,14 @@ class GaussianDiffusion:
         else:
             per_entry = F.mse_loss(out, target, reduction="none")
         sq = (out.detach() - target) ** 2
-        if known_mask is None:
-            main, mse = per_entry.mean(), sq.mean()
-            free_fraction = torch.ones((), device=x0.device)
+        free = torch.ones_like(out) if known_mask is None else (~known_mask).to(out.dtype)      # (B, L, D)
+        n = free.sum().clamp(min=1)
+        mse, free_fraction = (sq * free).sum() / n, free.mean()
+        if channel_weights is None:
+            main = (per_entry * free).sum() / n
         else:
-            free = (~known_mask).to(out.dtype)
-            n = free.sum().clamp(min=1)
-            main, mse = (per_entry * free).sum() / n, (sq * free).sum() / n
-            free_fraction = free.mean()
+            w = free * channel_weights.to(out.dtype)                                          # (B, L, D)
+            main = (per_entry * w).sum() / w.sum().clamp(min=1e-8)
         name = f"{self.cfg.loss}_{self.cfg.prediction}"
         terms = {"loss": main, name: main.detach(), f"mse_{self.cfg.prediction}": mse,
                  "free_fraction": free_fraction}

@@ -26,7 +26,7 @@ class ModelConfig:
     attention_dropout: float = 0.0
     norm_first: bool = False        # False = post-LN as PyTorch's default and the reference
     scale_input: bool = True        # input projection multiplied by sqrt(width) (reference)
-    mask_channels: bool = False     # concatenate the known-entries mask to the input
+    mask_channels: bool = True      # pinned entries through their own input columns + the mask (docs/models.md)
     # Scene encoder: ViT over the local occupancy grid, height slices as channels.
     use_scene: bool = True
     scene_width: int = 64
@@ -65,7 +65,7 @@ PRESETS: dict[str, ModelConfig] = {
     # action encoder 512-d, 8 layers, 8 heads (num_heads // 2), FF 512, post-LN.
     "reference": ModelConfig(
         name="reference", width=512, layers=8, heads=16, ff=512, dropout=0.1, activation="gelu",
-        norm_first=False,
+        norm_first=False, mask_channels=False,
         scene_width=1024, scene_layers=6, scene_heads=16, scene_ff=2048, scene_patch=8,
         scene_pool="cls", scene_norm_first=True, scene_dropout=0.1,
         action_width=512, action_layers=8, action_heads=8, action_ff=512,

@@ -76,7 +76,11 @@ class Denoiser(nn.Module):
         D = num_joints * 3
         self.channels = D
         self.input_scale = math.sqrt(W) if cfg.scale_input else 1.0
-        self.input = nn.Linear(2 * D if cfg.mask_channels else D, W)
+        # mask_channels: [free entries, pinned entries, mask] each through their own columns, so a
+        # few clean values (the goal: 2 of D channels of the last frame) are not swamped by the
+        # noisy entries of the same token (measured: with one shared projection the network
+        # ignored the goal entirely).
+        self.input = nn.Linear(3 * D if cfg.mask_channels else D, W)
         self.register_buffer("pos", sinusoidal_embedding(torch.arange(window + 1), W), persistent=False)
         self.t_embed = TimestepEmbedder(W)
         self.drop = Dropout(cfg.dropout)
@@ -158,8 +162,8 @@ class Denoiser(nn.Module):
 
         inp = x_t
         if self.cfg.mask_channels:
-            mask = known_mask if known_mask is not None else torch.zeros_like(x_t, dtype=torch.bool)
-            inp = torch.cat([x_t, mask.to(x_t.dtype)], -1)  # (B, L, 2D)
+            mask = (known_mask if known_mask is not None else torch.zeros_like(x_t, dtype=torch.bool)).to(x_t.dtype)
+            inp = torch.cat([x_t * (1 - mask), x_t * mask, mask], -1)  # (B, L, 3D)
         h = self.input(inp) * self.input_scale  # (B, L, W)
         if enc.per_frame is not None:
             h = h + enc.per_frame[:, :L]

@@ -121,3 +121,12 @@ def load_model(path, device="cpu", use_ema: bool = True) -> LoadedModel:
         from motiongen.errors import MotiongenError
         raise MotiongenError(f"{path}: incompatible checkpoint, missing {missing}")
     return LoadedModel(state, device, use_ema)
+
+
+def loss_channel_weights(tc, num_joints: int, device) -> torch.Tensor | None:
+    """(J*3,) per-channel loss weights: the pelvis (joint 0) channels get train.pelvis_loss_weight."""
+    if tc.pelvis_loss_weight == 1.0:
+        return None
+    w = torch.ones(num_joints * 3, device=device)
+    w[:3] = tc.pelvis_loss_weight
+    return w

@@ -20,7 +20,7 @@ from motiongen.data.windows import NormStats, WindowDataset
 from motiongen.errors import ConfigError, MotiongenError
 from motiongen.training import distributed as dd
 from motiongen.training.builders import (batch_condition, build_from_config, data_config, known_mask_for_batch,
-                                         window_config)
+                                         loss_channel_weights, window_config)
 from motiongen.training.checkpoint import find_resume, load_checkpoint, save_checkpoint
 from motiongen.training.config import TrainConfig
 from motiongen.training.data_order import ResumableBatchSampler
@@ -171,6 +171,7 @@ def train(cfg: DictConfig, run_dir: Path) -> Path | None:
 
     # ---- loop ----------------------------------------------------------------------------
     autocast = torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp == "bf16")
+    weights = loss_channel_weights(tc, ds.joint_set.num_joints, device)
     it = iter(loader)
     bar = None
     if info.is_main and tc.progress:
@@ -189,7 +190,8 @@ def train(cfg: DictConfig, run_dir: Path) -> Path | None:
         t = torch.randint(0, diffusion.num_timesteps, (B,), device=device, generator=noise_gen)
         noise = torch.randn(x0.shape, device=device, generator=noise_gen)
         with autocast:
-            losses = diffusion.training_losses(net, x0, t, cond, known=x0, known_mask=known_mask, noise=noise)
+            losses = diffusion.training_losses(net, x0, t, cond, known=x0, known_mask=known_mask, noise=noise,
+                                               channel_weights=weights)
         loss = losses["loss"]
         opt.zero_grad(set_to_none=True)
         loss.backward()

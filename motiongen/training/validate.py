@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch.utils.data import DataLoader, Subset
 
-from motiongen.training.builders import batch_condition, known_mask_for_batch
+from motiongen.training.builders import batch_condition, known_mask_for_batch, loss_channel_weights
 
 
 @torch.no_grad()
@@ -24,7 +24,8 @@ def validation_loss(model, diffusion, val_set, cfg, tc, device, autocast) -> flo
         t = torch.randint(0, diffusion.num_timesteps, (x0.shape[0],), device=device, generator=gen)
         noise = torch.randn(x0.shape, device=device, generator=gen)
         with autocast:
-            losses = diffusion.training_losses(model, x0, t, cond, known=x0, known_mask=mask, noise=noise)
+            losses = diffusion.training_losses(model, x0, t, cond, known=x0, known_mask=mask, noise=noise,
+                                               channel_weights=loss_channel_weights(tc, x0.shape[-1] // 3, device))
         total += float(losses["loss"]) * x0.shape[0]
         count += x0.shape[0]
     return total / max(count, 1)
