@@ -46,7 +46,8 @@ class Oracle(nn.Module):
 
 
 def _loaded():
-    diffusion = GaussianDiffusion(DiffusionConfig(clip_x0=1e6))  # no clipping: world offsets leave [-1, 1]
+    # the oracle returns ε; no clipping: world offsets leave [-1, 1]
+    diffusion = GaussianDiffusion(DiffusionConfig(clip_x0=1e6, prediction="eps"))
     stats = NormStats(np.zeros(J * 3, np.float32), np.full(J * 3, 2.0, np.float32))
     return types.SimpleNamespace(model=Oracle(diffusion, stats).eval(), diffusion=diffusion, stats=stats,
                                  joint_set=BODY, action_names=["walk", "sit"], window=WindowConfig(),
