@@ -7,7 +7,7 @@ Groups (see docs/config.md): `model` (tiny | paper | reference, from motiongen.m
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 from hydra.core.config_store import ConfigStore
 

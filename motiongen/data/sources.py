@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import fcntl
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from motiongen.data.format import MotionDataset
@@ -19,7 +19,6 @@ class DataConfig:
     size: str = "default"            # synthetic size: default | small
     seed: int = 0                    # synthetic generator seed
     splits: dict | None = None       # override {train: [...], val: [...], test: [...]} scene ids
-    num_workers: int = 2
 
 
 def dataset_root(cfg: DataConfig) -> Path:

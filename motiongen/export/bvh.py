@@ -192,7 +192,6 @@ def joints_to_bvh(joints, fps: float, order: str = "ZXY", unit: str = "m", helpe
     x = np.asarray(joints, np.float64)[:, :NUM_BODY_JOINTS]                  # (T, 22, 3)
     if x.ndim != 3 or x.shape[1:] != (NUM_BODY_JOINTS, 3) or len(x) == 0:
         raise ValueError(f"joints: expected (T>0, 22, 3), got {np.shape(joints)}")
-    T = len(x)
     F = {j: _joint_frame(x, BODY_JOINT_NAMES[j]) for j in range(NUM_BODY_JOINTS) if CHILDREN[j]}      # (T,3,3)
     Ft = {j: _joint_frame(TEMPLATE, BODY_JOINT_NAMES[j]) for j in F}                                   # (3,3)
 

@@ -8,7 +8,6 @@ summary.json, and on request body_<s>.npz (SMPL-X, AMASS layout) and motion_<s>.
 from __future__ import annotations
 
 import json
-import math
 import os
 import time
 from dataclasses import dataclass, field
