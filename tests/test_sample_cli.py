@@ -112,3 +112,14 @@ def test_bad_inputs_exit_2_with_one_line(files, tmp_path):
         assert "Traceback" not in stderr
         out = tmp_path / name
         assert not out.exists() or not any(out.iterdir()), (name, list(out.iterdir()))
+
+
+def test_obstacle_faces_hide_shared_sides():
+    """Two adjacent equal columns expose 2 tops + 6 sides (the shared pair is hidden)."""
+    from motiongen.export.video import obstacle_faces
+    cols = np.array([[0.1, 0.1, 1.0], [0.3, 0.1, 1.0]])
+    corners, normals, shade = obstacle_faces(cols, 0.2)
+    assert corners.shape == (8, 4, 3) and (normals[:, 1] == 1).sum() == 2
+    assert not ((normals[:, 0] == 1) & np.isclose(corners[:, 0, 0], 0.2)).any()   # no face on the shared wall
+    taller = obstacle_faces(np.array([[0.1, 0.1, 1.0], [0.3, 0.1, 0.5]]), 0.2)[0]
+    assert len(taller) == 9                                                        # the taller column's side shows

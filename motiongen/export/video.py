@@ -3,8 +3,8 @@
 Left panel: the scene's obstacles seen from above (from the occupancy grid), the planned path,
 subgoals and goals, the trajectory so far, and the skeleton, in a window that follows the
 body. Right panel: a perspective camera behind and above the body (heading smoothed so the
-camera does not shake with every step), with a floor grid, obstacles as height columns and
-the goals.
+camera does not shake with every step), with a floor grid, obstacles as shaded boxes (faces
+between the camera and the body drawn see-through) and the goals.
 
 Speed: one figure is built once and only artists' data change per frame; frames are
 downsampled to `video_fps` (default 15). Written as mp4 through imageio-ffmpeg when it is
@@ -66,6 +66,31 @@ def obstacle_columns(walkable=None, grid=None, cell: float = 0.1) -> np.ndarray:
     return np.zeros((0, 3))
 
 
+def obstacle_faces(columns: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Box faces of obstacle columns (N, 3) (x, z, top) on a `cell` lattice: the top of every
+    column and the sides not hidden by an equally tall neighbour.
+    Returns corners (F, 4, 3), outward normals (F, 3) and a brightness (F,) for flat shading."""
+    if not len(columns):
+        return np.zeros((0, 4, 3)), np.zeros((0, 3)), np.zeros(0)
+    h = cell / 2
+    key = {(round(x / cell), round(z / cell)): top for x, z, top in columns}
+    corners, normals, shade = [], [], []
+    for x, z, top in columns:
+        corners.append([[x - h, top, z - h], [x + h, top, z - h], [x + h, top, z + h], [x - h, top, z + h]])
+        normals.append([0.0, 1.0, 0.0])
+        shade.append(1.0)
+        i, k = round(x / cell), round(z / cell)
+        for (di, dk), quad, lum in (((1, 0), [[x + h, 0, z - h], [x + h, 0, z + h], [x + h, top, z + h], [x + h, top, z - h]], 0.72),
+                                    ((-1, 0), [[x - h, 0, z - h], [x - h, 0, z + h], [x - h, top, z + h], [x - h, top, z - h]], 0.72),
+                                    ((0, 1), [[x - h, 0, z + h], [x + h, 0, z + h], [x + h, top, z + h], [x - h, top, z + h]], 0.85),
+                                    ((0, -1), [[x - h, 0, z - h], [x + h, 0, z - h], [x + h, top, z - h], [x - h, top, z - h]], 0.85)):
+            if key.get((i + di, k + dk), 0.0) < top:                       # exposed side
+                corners.append(quad)
+                normals.append([di, 0.0, dk])
+                shade.append(lum)
+    return np.asarray(corners, np.float64), np.asarray(normals, np.float64), np.asarray(shade)
+
+
 def _heading(joints: np.ndarray, fps: float, tau: float = 0.8) -> np.ndarray:
     """(T,) camera yaw: the body's facing from the hips, exponentially smoothed (time constant
     tau seconds) on the unit circle so the camera turns calmly."""
@@ -102,6 +127,27 @@ class _Camera:
         return uv, d
 
 
+def _visible_faces(cam: "_Camera", body: np.ndarray, faces: np.ndarray, normals: np.ndarray, rgb: np.ndarray,
+                   radius: float = 7.0) -> tuple[list, np.ndarray]:
+    """Projected faces near the camera that face it, far to near (painter's algorithm), with
+    faces between the camera and the body see-through so furniture never hides the person."""
+    if not len(faces):
+        return [], np.zeros((0, 4))
+    centre = faces.mean(1)                                                                   # (F, 3)
+    near = np.linalg.norm(centre - body, axis=-1) < radius
+    facing = ((cam.eye - centre) * normals).sum(-1) > 0
+    idx = np.nonzero(near & facing)[0]
+    uv, d = cam.project(faces[idx].reshape(-1, 3))
+    uv, d = uv.reshape(-1, 4, 2), d.reshape(-1, 4)
+    ok = (d > 0.2).all(1) & (np.abs(uv) < 6).all(axis=(1, 2))
+    uv, d, idx = uv[ok], d[ok], idx[ok]
+    order = np.argsort(-d.mean(1))
+    body_depth = float(cam.project(body[None])[1][0])
+    alpha = np.where(d.mean(1) < body_depth - 0.3, 0.25, 1.0)                                # (M,)
+    colours = np.concatenate([rgb[idx], alpha[:, None]], -1)[order]                          # (M, 4)
+    return list(uv[order]), colours
+
+
 def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequence[int] = BODY_PARENTS,
                  grid=None, walkable=None, path_xz: np.ndarray | None = None, subgoals: np.ndarray | None = None,
                  goals: np.ndarray | None = None, video_fps: float = 15.0, size: tuple[int, int] = (800, 352),
@@ -113,7 +159,7 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
 
     matplotlib.use("Agg", force=False)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.collections import LineCollection
+    from matplotlib.collections import LineCollection, PolyCollection
     from matplotlib.figure import Figure
 
     path = Path(path)
@@ -172,15 +218,15 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
     grid_segs = [np.array([[x, 0, z0_], [x, 0, z1_]]) for x in gx for z0_, z1_ in zip(gz[:-1], gz[1:])] + \
                 [np.array([[x0_, 0, z], [x1_, 0, z]]) for z in gz for x0_, x1_ in zip(gx[:-1], gx[1:])]
     grid_segs = np.stack(grid_segs) if grid_segs else np.zeros((0, 2, 3))                   # (N, 2, 3)
-    col_segs = np.stack([np.stack([columns[:, 0], np.zeros(len(columns)), columns[:, 1]], -1),
-                         np.stack([columns[:, 0], columns[:, 2], columns[:, 1]], -1)], 1)    # (N, 2, 3)
-    cam_floor = LineCollection([], colors="#bbbbbb", linewidths=0.6)
-    cam_cols = LineCollection([], colors="#6b7b8c", linewidths=2.0, alpha=0.6)
+    faces, normals, shade = obstacle_faces(columns, 0.2)                                     # (F, 4, 3), (F, 3), (F,)
+    face_rgb = np.array([0.55, 0.60, 0.68])[None] * shade[:, None]                           # (F, 3) flat shading
+    cam_floor = LineCollection([], colors="#bbbbbb", linewidths=0.6, zorder=1)
+    cam_faces = PolyCollection([], edgecolors="#56606e", linewidths=0.3, zorder=2)
     ax_cam.add_collection(cam_floor)
-    ax_cam.add_collection(cam_cols)
-    cam_path = ax_cam.plot([], [], "--", color="#777777", lw=1)[0]
-    cam_goals = ax_cam.plot([], [], "*", color="#ffbf00", ms=12, mec="k", mew=0.5)[0]
-    cam_bones = [LineCollection([], colors=SAMPLE_COLOURS[s % 8], linewidths=2.5) for s in range(S)]
+    ax_cam.add_collection(cam_faces)
+    cam_path = ax_cam.plot([], [], "--", color="#777777", lw=1, zorder=3)[0]
+    cam_goals = ax_cam.plot([], [], "*", color="#ffbf00", ms=12, mec="k", mew=0.5, zorder=3)[0]
+    cam_bones = [LineCollection([], colors=SAMPLE_COLOURS[s % 8], linewidths=2.5, zorder=4) for s in range(S)]
     for lc in cam_bones:
         ax_cam.add_collection(lc)
     ax_cam.set_xlim(-1.0, 1.0)
@@ -215,7 +261,9 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
             top_bones[s].set_segments(seg)
         cam = _Camera(p, heading[t])
         cam_floor.set_segments(proj_segments(cam, grid_segs))
-        cam_cols.set_segments(proj_segments(cam, col_segs))
+        verts, colours = _visible_faces(cam, p, faces, normals, face_rgb)
+        cam_faces.set_verts(verts)
+        cam_faces.set_facecolor(colours)
         if path3 is not None:
             uv, d = cam.project(path3)
             uv = np.where((d > 0.2)[:, None], uv, np.nan)
