@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
 from motiongen.errors import ConfigError, DataError, MotiongenError
+from motiongen.staging import StagedOutputs
 
 # (key, label, unit, arrow): arrow says which way is better; "≈ref" = closer to the reference row.
 METRICS = [
@@ -107,32 +107,6 @@ def markdown(report: dict) -> str:
     lines += ["Trajectory figures: `plots/<setting>_scene<id>.png` (map, A* path, start ●, goal ★ / "
               "interaction ■, object ▲, the k pelvis tracks).", ""]
     return "\n".join(lines)
-
-
-class _Staging:
-    """Temp names inside `out`, renamed into place by commit() (a failed run leaves no partial report)."""
-
-    def __init__(self, out: Path):
-        self.out, self.files = out, []
-
-    def tmp(self, name: str) -> Path:
-        final = self.out / name
-        final.parent.mkdir(parents=True, exist_ok=True)
-        t = final.with_name(f".tmp-{os.getpid()}-{final.name}")
-        self.files.append((t, final))
-        return t
-
-    def commit(self) -> list[Path]:
-        done = []
-        for t, final in self.files:
-            os.replace(t, final)
-            done.append(final)
-        self.files = []
-        return done
-
-    def abort(self) -> None:
-        for t, _ in self.files:
-            t.unlink(missing_ok=True)
 
 
 def log_tensorboard(run_dir, report: dict, images: dict[str, Path], step: int) -> None:
@@ -255,7 +229,7 @@ def run(cfg, default_out: Path) -> dict:
 
     out = Path(cfg.out) if cfg.get("out") else Path(default_out)
     out.mkdir(parents=True, exist_ok=True)
-    stage = _Staging(out)
+    stage = StagedOutputs(out)
     images: dict[str, Path] = {}
     try:
         if bool(cfg.get("plots", True)):

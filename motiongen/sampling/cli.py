@@ -8,7 +8,6 @@ summary.json, and on request body_<s>.npz (SMPL-X, AMASS layout) and motion_<s>.
 from __future__ import annotations
 
 import json
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +18,7 @@ import torch
 from motiongen.errors import ConfigError, DataError, MotiongenError
 from motiongen.sampling.autoregressive import LoopConfig, Motion, SamplerSettings, generate
 from motiongen.sampling.goals import Goal, WalkableMap, check_actions, load_goals_file, parse_goals, plan_route, walkable_map
+from motiongen.staging import StagedOutputs
 
 
 @dataclass
@@ -176,38 +176,6 @@ def _default_start(fmap: WalkableMap | None, first_goal: np.ndarray) -> np.ndarr
 # Outputs
 
 
-class _Staging:
-    """Temp files in `out` renamed to their final names only by `commit()`."""
-
-    def __init__(self, out: Path):
-        self.out = out
-        self.files: list[tuple[Path, Path]] = []
-
-    def path(self, name: str) -> Path:
-        p = Path(name)
-        tmp = self.out / f".tmp-{os.getpid()}-{p.stem}{p.suffix}"
-        return tmp
-
-    def add(self, tmp: Path, name: str) -> Path:
-        final = self.out / name
-        self.files.append((tmp, final))
-        return final
-
-    def commit(self) -> list[Path]:
-        done = []
-        for tmp, final in self.files:
-            os.replace(tmp, final)
-            done.append(final)
-        self.files = []
-        return done
-
-    def abort(self) -> None:
-        for tmp, _ in self.files:
-            tmp.unlink(missing_ok=True)
-        for p in self.out.glob(f".tmp-{os.getpid()}-*"):
-            p.unlink(missing_ok=True)
-
-
 def motion_arrays(motion: Motion, extra: dict | None = None) -> dict:
     """The motion.npz payload (no pickled objects: strings as unicode arrays)."""
     r = motion.route
@@ -359,26 +327,26 @@ def run(cfg, default_out: Path) -> dict:
                       log=(lambda m: print(m, flush=True)) if _bool(cfg, "verbose") else None)
 
     out.mkdir(parents=True, exist_ok=True)
-    stage = _Staging(out)
+    stage = StagedOutputs(out)
     written = []
     try:
         extra = {"ckpt": str(ckpt), "scene": scene.label, "sampler": sampler.sampler, "steps": sampler.steps,
                  "eta": sampler.eta, "guidance_scale": sampler.guidance_scale, "seed": int(cfg.seed)}
-        tmp = stage.path("motion.npz")
+        tmp = stage.tmp("motion.npz")
         np.savez(tmp, **motion_arrays(motion, extra))
         stage.add(tmp, "motion.npz")
         goals_xz = np.stack([g.xz for g in route.goals])
         if _bool(cfg, "plot", True):
             from motiongen.export.plots import plot_trajectories
 
-            tmp = plot_trajectories(stage.path("trajectories.png"), motion.joints, fmap, route.path, route.subgoals,
+            tmp = plot_trajectories(stage.tmp("trajectories.png"), motion.joints, fmap, route.path, route.subgoals,
                                     goals_xz, motion.arrival_frame, title=f"{scene.label} — {ckpt.name}")
             stage.add(tmp, "trajectories.png")
         if _bool(cfg, "video", True):
             from motiongen.export.video import render_video, video_suffix
 
             tv = time.perf_counter()
-            tmp = render_video(stage.path("motion" + video_suffix()), motion.joints, motion.fps,
+            tmp = render_video(stage.tmp("motion" + video_suffix()), motion.joints, motion.fps,
                                loaded.joint_set.parents, scene.grid, fmap, route.path, route.subgoals, goals_xz,
                                video_fps=float(cfg.video_fps), title=f"{scene.label}")
             stage.add(tmp, "motion" + tmp.suffix)
@@ -390,7 +358,7 @@ def run(cfg, default_out: Path) -> dict:
 
             for s in range(S):
                 name = "motion.bvh" if S == 1 else f"motion_{s}.bvh"
-                stage.add(export_bvh(stage.path(name), motion.joints[s], motion.fps), name)
+                stage.add(export_bvh(stage.tmp(name), motion.joints[s], motion.fps), name)
         if _bool(cfg, "body"):
             try:
                 from motiongen.body.fit import fit_joints, save_amass_npz
@@ -399,7 +367,7 @@ def run(cfg, default_out: Path) -> dict:
             for s in range(S):
                 name = "body.npz" if S == 1 else f"body_{s}.npz"
                 fit = fit_joints(motion.joints[s])
-                stage.add(save_amass_npz(stage.path(name), fit, motion.fps), name)
+                stage.add(save_amass_npz(stage.tmp(name), fit, motion.fps), name)
                 print(f"body fit sample {s}: MPJPE {fit.mpjpe * 1000:.1f} mm", flush=True)
         lines = summary_lines(motion, sampler)
         summary = {"frames": int(motion.joints.shape[1]), "fps": motion.fps, "duration_s": motion.duration,
@@ -409,7 +377,7 @@ def run(cfg, default_out: Path) -> dict:
                                                     motion.arrival_error_body, -1).tolist(),
                    "generation_s": motion.wall_time, "real_time_factor": motion.real_time_factor,
                    "total_s": time.perf_counter() - t0, "sampler": sampler.__dict__}
-        tmp = stage.path("summary.json")
+        tmp = stage.tmp("summary.json")
         tmp.write_text(json.dumps(summary, indent=2))
         stage.add(tmp, "summary.json")
         written = stage.commit()
