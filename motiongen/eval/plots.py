@@ -59,6 +59,10 @@ def plot_scene_pairs(path, fmap, results, title: str = "", dpi: int = 90) -> Pat
                      f"done {r.completed:.0%}", fontsize=8)
         ax.set_aspect("equal")
         ax.tick_params(labelsize=6)
+    return _save(fig, path, title)
+
+
+def _save(fig, path, title: str) -> Path:
     if title:
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()
@@ -85,12 +89,7 @@ def plot_metric_bars(path, rows: dict[str, dict], metrics, title: str = "", dpi:
         ax.set_xticks(range(len(names)), names, fontsize=7)
         ax.set_title(f"{label} {arrow}" + (f" [{unit}]" if unit else ""), fontsize=8)
         ax.tick_params(axis="y", labelsize=6)
-    if title:
-        fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, format="png")
-    return path
+    return _save(fig, path, title)
 
 
 def _num(v):

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from motiongen.errors import ConfigError, DataError, MotiongenError
+from motiongen.errors import ConfigError, DataError
 from motiongen.staging import StagedOutputs
 
 # (key, label, unit, arrow): arrow says which way is better; "≈ref" = closer to the reference row.
@@ -172,18 +172,9 @@ def run(cfg, default_out: Path) -> dict:
     if threads > 0:
         torch.set_num_threads(threads)
     device = str(cfg.device)
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise ConfigError(f"device={device}: CUDA is not available")
-
     from motiongen.training.builders import load_model
 
-    try:
-        loaded = load_model(ckpt, device)
-    except MotiongenError:
-        raise
-    except Exception as e:  # torch.load / unpickling / shape errors: the user's file
-        raise DataError(ckpt, None, f"unreadable or incompatible checkpoint ({type(e).__name__}: "
-                                    f"{str(e).splitlines()[0] if str(e) else ''})") from None
+    loaded = load_model(ckpt, device)
 
     from motiongen.data.sources import open_dataset
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from motiongen.errors import ConfigError, DataError, MotiongenError
+from motiongen.errors import ConfigError, DataError
 from motiongen.sampling.autoregressive import LoopConfig, Motion, SamplerSettings, generate
 from motiongen.sampling.goals import Goal, WalkableMap, check_actions, load_goals_file, parse_goals, plan_route, walkable_map
 from motiongen.staging import StagedOutputs
@@ -274,15 +274,7 @@ def run(cfg, default_out: Path) -> dict:
     from motiongen.training.builders import load_model
 
     device = str(cfg.device)
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise ConfigError(f"device={device}: CUDA is not available")
-    try:
-        loaded = load_model(ckpt, device)
-    except MotiongenError:
-        raise
-    except Exception as e:  # torch.load / unpickling / shape errors: the user's file
-        raise DataError(ckpt, None, f"unreadable or incompatible checkpoint ({type(e).__name__}: "
-                                    f"{str(e).splitlines()[0] if str(e) else ''})") from None
+    loaded = load_model(ckpt, device)
     scene = resolve_scene(cfg.get("scene"), loaded.config, float(cfg.voxel_size), str(cfg.scene_up),
                           _bool(cfg, "objects", True))
     fmap = None

@@ -112,15 +112,25 @@ class LoadedModel:
 
 
 def load_model(path, device="cpu", use_ema: bool = True) -> LoadedModel:
-    """Rebuild a trained model from a checkpoint file (config and statistics inside it)."""
+    """Rebuild a trained model from a checkpoint file (config and statistics inside it).
+    Anything wrong with the file or the device is a user error (MotiongenError)."""
+    from motiongen.errors import DataError, MotiongenError
     from motiongen.training.checkpoint import load_checkpoint
 
+    device = str(device)
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(f"device={device}: CUDA is not available")
     state = load_checkpoint(path, map_location="cpu")
     missing = [k for k in ("config", "stats", "joint_names", "action_names", "ema", "model") if k not in state]
     if missing:
-        from motiongen.errors import MotiongenError
         raise MotiongenError(f"{path}: incompatible checkpoint, missing {missing}")
-    return LoadedModel(state, device, use_ema)
+    try:
+        return LoadedModel(state, device, use_ema)
+    except MotiongenError:
+        raise
+    except Exception as e:  # a config or tensors this version cannot rebuild: the user's file
+        first = str(e).splitlines()[0] if str(e) else ""
+        raise DataError(path, None, f"unreadable or incompatible checkpoint ({type(e).__name__}: {first})") from None
 
 
 def loss_channel_weights(tc, num_joints: int, device) -> torch.Tensor | None:
