@@ -10,8 +10,9 @@ Conventions we follow (documented in docs/bvh.md):
   toe tips take part in height estimation.
 
 `load_bvh` parses; `BVH.fk` gives world positions of every joint; `bvh_to_body` maps a BVH
-skeleton onto `motiongen.skeleton.BODY` (22 SMPL-X joints), detects unit and up axis,
-resamples to 30 fps and puts the lowest joint on the floor. `write_bvh` writes a `BVH`.
+skeleton onto `motiongen.skeleton.BODY` (22 SMPL-X joints), detects unit and up axis from
+the motion (`motiongen.data.bvh_detect`), resamples to 30 fps, refuses what does not look
+like a standing human and puts the lowest joint on the floor. `write_bvh` writes a `BVH`.
 """
 
 from __future__ import annotations
@@ -25,8 +26,10 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
+from motiongen.data.bvh_detect import (UNITS, check_plausible, detect_unit, detect_up, leg_length, parse_up,
+                                       stature, up_rotation)
 from motiongen.errors import DataError
-from motiongen.skeleton import BODY_JOINT_NAMES, HEAD, PELVIS
+from motiongen.skeleton import BODY_JOINT_NAMES, HEAD
 
 _CHANNEL_RE = re.compile(r"^([xyz])(position|rotation)$", re.IGNORECASE)
 
@@ -373,11 +376,6 @@ LAYOUTS: dict[str, dict[str, object]] = {
 # In "mixamo", a list means "first name present" (LeftToe vs LeftToeBase), not an average.
 _FIRST_OF = {("mixamo", f"{s}_foot") for s in _SIDES}
 
-# Candidate units, metres per file unit. CMU's ASF units are 1/0.45 inch.
-UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "cmu": 0.0254 / 0.45}
-PLAUSIBLE_HEIGHT = (1.4, 2.1)   # metres, rest-pose extent from lowest to highest joint / End Site
-
-
 def _norm(name: str) -> str:
     return name.rsplit(":", 1)[-1].strip().lower()
 
@@ -451,22 +449,6 @@ def _gather(positions: np.ndarray, idx: list[list[int]]) -> np.ndarray:
     return np.stack([positions[..., i, :].mean(axis=-2) for i in idx], axis=-2)
 
 
-def _up_rotation(up: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation taking the dominant axis of `up` to +y (a 90/180-degree turn)."""
-    axis = int(np.argmax(np.abs(up)))
-    sign = np.sign(up[axis])
-    e = np.zeros(3)
-    e[axis] = sign
-    target = np.array([0.0, 1.0, 0.0])
-    if np.allclose(e, target):
-        return np.eye(3)
-    if np.allclose(e, -target):
-        return np.diag([1.0, -1.0, -1.0])          # 180 degrees about x
-    # z-up -> y-up is (x, y, z) -> (x, z, -y): -90 degrees about the remaining axis
-    rot_axis = np.cross(e, target)
-    return Rotation.from_rotvec(rot_axis * np.pi / 2).as_matrix()
-
-
 @dataclass
 class ImportedMotion:
     joints: np.ndarray       # (T, 22, 3) float64, metres, y-up, at `fps`
@@ -474,21 +456,10 @@ class ImportedMotion:
     layout: str              # built-in layout name or "user"
     unit: str                # key of UNITS
     up_axis: str             # "+y", "+z", ... of the file
-    height: float            # rest-pose height in metres (lowest to highest joint / End Site)
+    height: float            # stature, metres: head top above the lowest point, 95th pct over frames
     source_fps: float
-
-
-def detect_unit(height_file_units: float, path: str = "<memory>") -> str:
-    """The unit (key of UNITS) that makes `height_file_units` a plausible human height."""
-    lo, hi = PLAUSIBLE_HEIGHT
-    target = np.sqrt(lo * hi)
-    scored = sorted(UNITS, key=lambda u: abs(np.log(height_file_units * UNITS[u] / target)))
-    best = scored[0]
-    h = height_file_units * UNITS[best]
-    if not (lo <= h <= hi):
-        raise DataError(path, None, f"cannot detect units: rest-pose height {height_file_units:.4g} file units "
-                                    f"is not {lo}-{hi} m in any of {list(UNITS)}; pass unit=")
-    return best
+    up_from: str = "given"   # what decided up_axis: "motion", "rest pose" or "given"
+    unit_from: str = "given"  # "leg length" or "given"
 
 
 def resample(positions: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
@@ -501,43 +472,50 @@ def resample(positions: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarra
     return CubicSpline(t_src, positions, axis=0)(t_dst)
 
 
+def _head_and_below(bvh: BVH, head: list[int]) -> list[int]:
+    """The mapped head joint(s) and their descendants (head-top End Site, HeadTop_End...)."""
+    keep = set(head)
+    for j, p in enumerate(bvh.parents):
+        if p in keep:
+            keep.add(j)
+    return sorted(keep)
+
+
 def bvh_to_body(bvh: BVH, mapping: dict[str, object] | None = None, mapping_path: str | Path | None = None,
-                fps: float | None = 30.0, unit: str | None = None, floor: bool = True) -> ImportedMotion:
+                fps: float | None = 30.0, unit: str | None = None, floor: bool = True,
+                up: str | None = None) -> ImportedMotion:
     """Map a BVH onto our 22 body joints: metres, y-up, resampled to `fps` (None keeps the file's).
 
-    unit: a key of UNITS, or None to detect it from the rest-pose height. Up axis: the rest
-    pose's head-above-pelvis direction; it is turned onto +y. floor=True shifts y so that the
-    lowest joint over the clip sits at y = 0 (the HumanML3D convention our foot-skating
-    thresholds were designed for); False keeps the file's vertical origin.
+    up: "y", "+z", "-x"... or None to detect it from the motion (the head is above the feet;
+    the rest pose is only a hint, see `bvh_detect.detect_up`); it is turned onto +y.
+    unit: a key of UNITS, or None to detect it from the leg length. The result must look like
+    a standing human (`bvh_detect.check_plausible`), else DataError: nothing implausible is
+    returned. floor=True shifts y so that the lowest joint over the clip sits at y = 0 (the
+    HumanML3D convention our foot-skating thresholds were designed for); False keeps the
+    file's vertical origin.
     """
     layout, idx = resolve_mapping(bvh, mapping, mapping_path)
-    rest = bvh.rest_positions()                               # (Jb, 3)
-    rest_body = _gather(rest, idx)                            # (22, 3)
-    up = rest_body[HEAD] - rest_body[PELVIS]
-    if np.linalg.norm(up) < 1e-9:                             # degenerate rest pose: use frame 0
-        first = bvh.fk(bvh.motion[:1])[0]
-        up = _gather(first, idx)[HEAD] - _gather(first, idx)[PELVIS]
-        rest = first
-        if np.linalg.norm(up) < 1e-9:
-            raise DataError(bvh.path, None, "cannot find the up axis: head and pelvis coincide in the rest pose and frame 0")
-    R = _up_rotation(up)
-    axis = int(np.argmax(np.abs(up)))
-    up_axis = ("+" if up[axis] > 0 else "-") + "xyz"[axis]
-    # Rest poses splay legs and arms (CMU's rest is 3% shorter than its first frame), so take
-    # the taller of the rest pose and frame 0, End Sites included.
-    frame0 = bvh.fk(bvh.motion[:1])[0]
-    height_src = float(max(np.ptp((rest @ R.T)[:, 1]), np.ptp((frame0 @ R.T)[:, 1])))
+    world = bvh.fk()                                          # (T, Jb, 3) file units and axes
+    body = _gather(world, idx)                                # (T, 22, 3)
+    if up is None:
+        up_axis, up_from, _ = detect_up(body, _gather(bvh.rest_positions(), idx), bvh.path)
+    else:
+        up_axis, up_from = parse_up(up, bvh.path), "given"
     if unit is None:
-        unit = detect_unit(height_src, bvh.path)
+        unit, unit_from = detect_unit(leg_length(body), bvh.path), "leg length"
     elif unit not in UNITS:
         raise DataError(bvh.path, "unit", f"unknown unit {unit!r}; expected one of {list(UNITS)}")
-    scale = UNITS[unit]
-    joints = _gather(bvh.fk(), idx) @ R.T * scale              # (T, 22, 3) metres, y-up
+    else:
+        unit_from = "given"
+    world = world @ up_rotation(up_axis).T * UNITS[unit]     # (T, Jb, 3) metres, y-up
+    joints = _gather(world, idx)                              # (T, 22, 3)
+    height = stature(world, _head_and_below(bvh, idx[HEAD]))
     out_fps = bvh.fps if fps is None else float(fps)
     joints = resample(joints, bvh.fps, out_fps)
+    check_plausible(joints, height, bvh.path, f"up {up_axis} from {up_from}, unit {unit} from {unit_from}")
     if floor:
         joints[..., 1] -= joints[..., 1].min()
-    return ImportedMotion(joints, out_fps, layout, unit, up_axis, height_src * scale, bvh.fps)
+    return ImportedMotion(joints, out_fps, layout, unit, up_axis, height, bvh.fps, up_from, unit_from)
 
 
 def import_bvh(path: str | Path, mapping: str | Path | dict | None = None, **kw) -> ImportedMotion:

@@ -1,13 +1,16 @@
 """Convert BVH files into a motiongen dataset (one sequence per file).
 
     python -m motiongen.data.import_bvh inputs=[a.bvh,b.bvh] out=DIR [mapping=FILE]
-        [scene=GRID_STEM] [scene_id=0] [split=train] [unit=cm] [fps=30] [action=walk] [overwrite=true]
+        [scene=GRID_STEM] [scene_id=0] [split=train] [unit=cm] [up=z] [fps=30] [action=walk] [overwrite=true]
 
 Joints are mapped onto the 22 SMPL-X body joints (built-in CMU / Biovision / Mixamo / SMPL-X
 layouts, or mapping=FILE: JSON {our_joint_name: bvh_joint_name}), converted to metres and
-y-up, resampled to `fps`, and the lowest joint of each clip put on y = 0. Without scene=, the
-clips share scene `scene_id` with an empty grid covering them (the floor is the grid's
-bottom face: below it counts as occupied in scene queries). All clips go to `split`.
+y-up (unit and up axis detected from the motion unless unit= / up= are given), resampled to
+`fps`, and the lowest joint of each clip put on y = 0. A clip that does not look like a
+standing human afterwards is refused (one line naming the file, exit 2, nothing written).
+Without scene=, the clips share scene `scene_id` with an empty grid covering them (the floor
+is the grid's bottom face: below it counts as occupied in scene queries). All clips go to
+`split`.
 Contact labels: a foot joint touches the floor when it is low (toes < 5 cm, ankles < 12 cm)
 and slow (< 0.3 m/s). Actions: none, or action=NAME labels every frame with NAME.
 User mistakes print one line and exit with status 2.
@@ -22,9 +25,10 @@ import numpy as np
 
 from motiongen.cli import parse_key_values, user_errors_exit_2
 from motiongen.data.bvh import UNITS, ImportedMotion, import_bvh, load_mapping
+from motiongen.data.bvh_detect import parse_up
 from motiongen.data.format import DatasetWriter
 from motiongen.data.occupancy import OccupancyGrid
-from motiongen.errors import ConfigError
+from motiongen.errors import ConfigError, MotiongenError
 from motiongen.skeleton import BODY, LEFT_FOOT_JOINTS, RIGHT_FOOT_JOINTS
 
 # (joint, height threshold m): toes touch lower than ankles.
@@ -36,7 +40,7 @@ EMPTY_GRID_HEIGHT = 2.0
 
 
 SPEC = {"inputs": (list, []), "out": (str, None), "mapping": (str, None), "scene": (str, None), "scene_id": (int, 0),
-        "split": (str, "train"), "unit": (str, None), "fps": (float, 30.0), "action": (str, None),
+        "split": (str, "train"), "unit": (str, None), "up": (str, None), "fps": (float, 30.0), "action": (str, None),
         "overwrite": (bool, False)}
 USAGE = "inputs=[a.bvh,b.bvh] out=DIR [mapping=FILE]"
 
@@ -76,12 +80,18 @@ def run(args: dict[str, str]) -> Path:
     unit = args.get("unit") or None
     if unit is not None and unit not in UNITS:
         raise ConfigError(f"unit={unit!r}: expected one of {list(UNITS)}")
+    up = args.get("up") or None
+    if up is not None:
+        try:
+            up = parse_up(up)
+        except MotiongenError:
+            raise ConfigError(f"up={up!r}: expected x, y or z with an optional sign (e.g. z, -y)") from None
     split, overwrite = args["split"], args["overwrite"]
 
     motions: list[tuple[str, ImportedMotion]] = []
     names: set[str] = set()
     for path in inputs:
-        m = import_bvh(path, mapping, fps=fps, unit=unit)
+        m = import_bvh(path, mapping, fps=fps, unit=unit, up=up)
         name, k = Path(path).stem, 1
         while name in names:
             name, k = f"{Path(path).stem}_{k}", k + 1
@@ -98,8 +108,9 @@ def run(args: dict[str, str]) -> Path:
             T = len(m.joints)
             w.add_sequence(name, scene=scene_id, joints=m.joints.astype(np.float32),
                            actions=np.ones((T, len(vocab)), bool), contact=foot_contact(m.joints, fps))
-            info.append({"name": name, "file": str(path), "layout": m.layout, "unit": m.unit, "up_axis": m.up_axis,
-                         "height_m": round(m.height, 4), "source_fps": m.source_fps})
+            info.append({"name": name, "file": str(path), "layout": m.layout, "unit": m.unit, "unit_from": m.unit_from,
+                         "up_axis": m.up_axis, "up_from": m.up_from, "height_m": round(m.height, 4),
+                         "source_fps": m.source_fps})
         splits = {s: [] for s in ("train", "val", "test")}
         splits[split] = [scene_id]
         return w.finish(splits=splits, source="bvh", extra={"bvh_import": info})
