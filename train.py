@@ -33,4 +33,7 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    from motiongen.cli import check_hydra_overrides
+
+    check_hydra_overrides()     # one line and exit 2 for a malformed override, as for every user error
     main()

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import io
 import sys
 from typing import Callable, TypeVar
 
@@ -28,6 +30,39 @@ def user_errors_exit_2(fn: F) -> F:
             sys.exit(2)
 
     return wrapper  # type: ignore[return-value]
+
+
+def check_hydra_overrides(argv: list[str] | None = None) -> None:
+    """Exit 2 with one line if a command-line override of a Hydra script is malformed.
+
+    Hydra parses overrides inside `hydra.main`, before our function (and so
+    `user_errors_exit_2`) runs, and reports a grammar error as several lines plus a
+    HYDRA_FULL_ERROR hint, exit 1. Call this first in `if __name__ == "__main__":`: it splits
+    argv with Hydra's own argument parser (so flags such as `--cfg job` or `-m` are left
+    alone) and parses each override with Hydra's own grammar.
+    """
+    from hydra._internal.utils import get_args_parser
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import OverrideParseException
+
+    argv = sys.argv[1:] if argv is None else argv
+    try:
+        with contextlib.redirect_stderr(io.StringIO()):
+            args, _ = get_args_parser().parse_known_args(argv)
+    except SystemExit:
+        return                      # a bad flag: Hydra's own usage message says it
+    parser = OverridesParser.create()
+    for override in args.overrides:
+        try:
+            parser.parse_overrides([override])
+        except OverrideParseException as e:
+            # Hydra's message: the reason, a caret line for lexer errors, a link to its docs.
+            lines = [ln.strip() for ln in str(e).splitlines()]
+            reason = "; ".join(ln for ln in lines if ln and not ln.startswith("See https://")
+                               and set(ln) != {"^"} and not ln.startswith("Error parsing override"))
+            print(f"error: malformed override {override!r}: {reason or 'not valid override syntax'}",
+                  file=sys.stderr, flush=True)
+            sys.exit(2)
 
 
 _TRUE, _FALSE = ("true", "1", "yes", "on"), ("false", "0", "no", "off")
