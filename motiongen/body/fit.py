@@ -335,7 +335,9 @@ def fit_joints(joints, body_model: BodyModel | None = None, mlp: JointsToBodyMLP
 def save_amass_npz(path: str | Path, fit: FitResult, fps: float, gender: str = "neutral") -> Path:
     """AMASS SMPL-X layout: poses (T, 165) = root 3 + body 63 + jaw 3 + eyes 6 + hands 90
     (zeros beyond the body), trans, betas, mocap_framerate, gender; plus root_orient,
-    pose_body, joints and per-frame joint error. Written to a temp file, then renamed."""
+    pose_body, joints and per-frame joint error, and `up` = "y": unlike AMASS (z-up) our world
+    is y-up, and `motiongen.data.import_amass` reads this key. Written to a temp file, then
+    renamed."""
     path = Path(path)
     T = fit.transl.shape[0]
     poses = np.zeros((T, 165), np.float32)
@@ -346,6 +348,7 @@ def save_amass_npz(path: str | Path, fit: FitResult, fps: float, gender: str = "
     np.savez(tmp, poses=poses, trans=fit.transl.astype(np.float32), betas=fit.betas.astype(np.float32),
              mocap_framerate=np.array(float(fps)), gender=np.array(gender), surface_model_type=np.array("smplx"),
              root_orient=fit.global_orient.astype(np.float32), pose_body=fit.body_pose.astype(np.float32),
-             joints=fit.joints.astype(np.float32), joint_error=fit.per_frame_error.astype(np.float32))
+             joints=fit.joints.astype(np.float32), joint_error=fit.per_frame_error.astype(np.float32),
+             up=np.array("y"))
     os.replace(tmp, path)
     return path

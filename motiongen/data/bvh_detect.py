@@ -143,9 +143,11 @@ def stature(points: np.ndarray, top: list[int]) -> float:
     return float(np.percentile(h, 95))
 
 
-def check_plausible(joints: np.ndarray, height: float, path: str = "<memory>", how: str = "") -> None:
+def check_plausible(joints: np.ndarray, height: float, path: str = "<memory>", how: str = "",
+                    hint: str = "check up=, unit= or mapping=") -> None:
     """Refuse a converted motion that is not a standing human: joints (T, 22, 3) metres,
-    y-up; `height` its stature (m). Raises one DataError naming everything that looked wrong."""
+    y-up; `height` its stature (m). Raises one DataError naming everything that looked wrong
+    (`how`: where the conventions came from; `hint`: what the user can change)."""
     y = joints[..., 1]                                            # (T, 22)
     feet = y[:, list(FOOT_JOINTS)].min(1)                         # (T,) lowest foot joint
     upright = (y[:, HEAD] - y[:, PELVIS] > HEAD_ABOVE_PELVIS) & (y[:, PELVIS] - feet > PELVIS_ABOVE_FEET)
@@ -163,7 +165,7 @@ def check_plausible(joints: np.ndarray, height: float, path: str = "<memory>", h
     if problems:
         where = f" ({how})" if how else ""
         raise DataError(path, None, f"not a plausible standing human after import{where}: {'; '.join(problems)}; "
-                                    "check up=, unit= or mapping=")
+                                    f"{hint}")
 
 
 __all__ = ["UNITS", "parse_up", "up_rotation", "rest_pose_hint", "detect_up", "leg_length", "detect_unit",
