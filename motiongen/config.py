@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 from hydra.core.config_store import ConfigStore
 
+from motiongen.data.representation import DEFAULT_CONTACT_JOINTS
 from motiongen.data.sources import DataConfig
 from motiongen.data.windows import WindowConfig
 from motiongen.training.config import TrainConfig
@@ -29,10 +30,14 @@ class WindowNode:
     grid_res: list = field(default_factory=lambda: [32, 32, 32])
     grid_lo: list = field(default_factory=lambda: [-0.6, 0.0, -0.6])
     grid_hi: list = field(default_factory=lambda: [0.6, 1.2, 0.6])
+    representation: str = "absolute"  # absolute | root (docs/models.md)
+    contact_joints: list = field(default_factory=lambda: list(DEFAULT_CONTACT_JOINTS))
+    stance_speed: float = 0.2
 
     def to_window_config(self) -> WindowConfig:
         return WindowConfig(self.length, self.stride, self.hop, self.scene, self.objects, self.outside_occupied,
-                            tuple(self.grid_res), tuple(self.grid_lo), tuple(self.grid_hi))
+                            tuple(self.grid_res), tuple(self.grid_lo), tuple(self.grid_hi), self.representation,
+                            tuple(self.contact_joints), self.stance_speed)
 
 
 _registered = False
@@ -63,5 +68,7 @@ def register_configs() -> None:
     cs.store(group="data", name="trumans", node=DataConfig(source="trumans"))
     cs.store(group="data", name="dataset", node=DataConfig(source="dataset"))
     cs.store(group="window", name="default", node=WindowNode())
+    # The public code's features: absolute joints, no stance channels.
+    cs.store(group="window", name="reference", node=WindowNode(contact_joints=[]))
     cs.store(group="train", name="default", node=TrainConfig())
     _registered = True

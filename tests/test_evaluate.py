@@ -97,26 +97,34 @@ def ckpt(tmp_path_factory):
     return run / "checkpoints" / "last.pt"
 
 
+CMU = "/usr/share/assimp/models/BVH"                            # Debian's assimp-testmodels (scripts/test.sh)
 EVAL = ["scenes=[92]", "pairs=1", "k=2", "steps=2", "max_episodes=6", "threads=1", "progress=false"]
 
 
 def test_evaluate_end_to_end(ckpt, tmp_path):
     out = tmp_path / "ev"
-    r = _run("evaluate.py", [f"ckpt={ckpt}", f"out={out}", f"run_dir={tmp_path / 'tb'}", *EVAL])
+    r = _run("evaluate.py", [f"ckpt={ckpt}", f"out={out}", f"run_dir={tmp_path / 'tb'}", f"mocap={CMU}", *EVAL])
     assert r.returncode == 0, r.stderr[-3000:]
     rep = json.loads((out / "report.json").read_text())
+    mocap = rep["settings"]["static"]["mocap"]                 # real CMU clips measured the same way
+    assert mocap["n_sequences"] == 3 and mocap["bone_cv"] < 0.005 and 0.0 < mocap["slide_mps"] < 0.1
     md = (out / "report.md").read_text()
     keys = [k for k, *_ in METRICS]
     for st in SETTINGS:
         block = rep["settings"][st]
         assert len(block["pairs"]) == 1 and len(block["pairs"][0]["samples"]) == 2
-        for row in ("model", "reference"):
+        for row in ("model", "model_raw", "reference"):
             missing = [k for k in keys if k not in block[row] and (st == "dynamic" or k != "object_dist_m")]
             assert not missing, (st, row, missing)
         assert block["reference"]["goal_dist_m"] is None and block["reference"]["apd_m"] is None
         assert block["model"]["apd_m"] is not None and block["model"]["foot_skating"] is not None
+        # the output is one body whatever a 100-step model predicts; the network's own joints are not
+        assert block["model"]["bone_max_dev"] < 1e-3 < block["model_raw"]["bone_max_dev"]
+        assert block["model"]["mesh_penetration_frames"] is not None and block["reference"]["mesh_penetration_frames"] is None
         assert f"## {st} setting" in md and (out / "plots" / f"{st}_scene92.png").is_file()
-    assert md.count("| model |") == 2 and md.count("| reference |") == 2
+    # two tables (Body, Task) per setting, each with a model, network and reference row
+    assert md.count("| model |") == 4 and md.count("| network joints |") == 4 and md.count("| reference |") == 4
+    assert md.count("| real mocap |") == 2                    # in the Body tables only
     assert not list(out.glob(".tmp-*")) and any((tmp_path / "tb").iterdir())
     # Deterministic: same seed, same numbers.
     out2 = tmp_path / "ev2"

@@ -213,3 +213,42 @@ def test_pskl_zero_for_same_spectrum_and_scale_free():
     assert pskl(A, 3.0 * A, FPS) == pytest.approx((0.0, 0.0), abs=1e-9)   # normalised spectra
     # different lengths: cut to the shortest
     assert pskl(list(A), [A[0][:20]], FPS)[0] >= 0
+
+
+# --- one body: bone lengths and grounded feet ----------------------------------------------
+
+def _rigid_walk(T=40):
+    from tests.helpers import walking_sequence
+    return walking_sequence(T, [0.0, 0.0], 0.2, 0.4, 1.2).astype(np.float64)          # rotating, translating
+
+
+def test_rigid_motion_has_zero_bone_variation():
+    from motiongen.eval.metrics import bone_consistency
+    from motiongen.skeleton import BODY_PARENTS
+    b = bone_consistency(_rigid_walk(), BODY_PARENTS)
+    assert b.cv_median < 1e-6 and b.cv_max < 1e-6 and b.max_deviation < 1e-6
+
+
+def test_stretched_bone_shows_its_deviation():
+    from motiongen.eval.metrics import bone_consistency, bone_lengths
+    from motiongen.skeleton import BODY_PARENTS, LEFT_HIP
+    j = _rigid_walk()
+    # frame 10: the pelvis joint moves 0.5 m up, away from its body (a pinned joint left behind)
+    j[10, PELVIS, 1] += 0.5
+    b = bone_consistency(j, BODY_PARENTS)
+    L = bone_lengths(_rigid_walk(), BODY_PARENTS)[0]
+    kids = [c for c, p in enumerate(BODY_PARENTS) if p >= 0]
+    hip = L[kids.index(LEFT_HIP)]                                                      # 0.122 m pelvis -> hip
+    stretched = np.hypot(0.09, 0.07 + 0.5)                                              # |(0.09, -0.07 - 0.5)|
+    assert b.max_deviation == pytest.approx((stretched - hip) / hip, rel=1e-6)
+    assert b.worst_bone in (1, 2, 3)                                                    # a bone of the pelvis
+
+
+def test_grounded_slide_is_the_drag_speed():
+    from motiongen.eval.metrics import grounded_slide
+    assert grounded_slide(with_feet(still(), 0.02, 0.0), FPS) == 0.0                    # planted
+    assert grounded_slide(with_feet(still(), 0.02, 0.3), FPS) == pytest.approx(0.3)     # dragged at 0.3 m/s
+    assert np.isnan(grounded_slide(with_feet(still(), 0.2, 0.3), FPS))                  # never on the floor
+    # half the 32 transitions dragged at 1 m/s, half planted: the median of equally many 1s and 0s
+    j = with_feet(still(T=33), 0.02, 1.0, frames=slice(0, 16))
+    assert grounded_slide(j, FPS) == pytest.approx(0.5)

@@ -26,13 +26,16 @@ def _checkpoint(path: Path) -> Path:
     mcfg = model_config("tiny", width=32, layers=1, heads=2, ff=64, scene_width=32, scene_layers=1, scene_heads=2,
                         scene_ff=64, action_width=32, action_layers=1, action_heads=2, action_ff=64)
     torch.manual_seed(0)
-    model = build_model(mcfg, 22, 2, 16)
-    center = np.zeros(66, np.float32)
-    center[1::3] = 0.9
+    D = 66 + 4                                                   # pose + the default stance channels
+    model = build_model(mcfg, 22, 2, 16, channels=D)
+    center = np.zeros(D, np.float32)
+    center[1:66:3] = 0.9
+    half = np.full(D, 1.5, np.float32)
+    half[66:] = 1.0
     cfg = {"model": asdict(mcfg), "diffusion": asdict(DiffusionConfig()), "window": asdict(WindowNode()),
            "mask": asdict(MaskConfig()), "data": asdict(DataConfig(source="dataset", root=str(path.parent)))}
     state = {"format": "motiongen-checkpoint", "config": cfg, "step": 0, "joint_names": list(BODY.names),
-             "action_names": ["walk", "sit"], "stats": {"center": center.tolist(), "half_range": [1.5] * 66},
+             "action_names": ["walk", "sit"], "stats": {"center": center.tolist(), "half_range": half.tolist()},
              "ema": model.state_dict(), "model": model.state_dict()}
     torch.save(state, path)
     return path
@@ -123,3 +126,27 @@ def test_obstacle_faces_hide_shared_sides():
     assert not ((normals[:, 0] == 1) & np.isclose(corners[:, 0, 0], 0.2)).any()   # no face on the shared wall
     taller = obstacle_faces(np.array([[0.1, 0.1, 1.0], [0.3, 0.1, 0.5]]), 0.2)[0]
     assert len(taller) == 9                                                        # the taller column's side shows
+
+
+def test_checkpoints_from_before_the_body_changes_load_as_they_were_trained(tmp_path):
+    """A checkpoint whose config predates window.representation / stance channels /
+    mask.predict_goal holds absolute joints (66 channels) and pinned goals: it must load as
+    such, not with today's defaults."""
+    from motiongen.training.builders import load_model
+
+    path = _checkpoint(tmp_path / "new.pt")
+    state = torch.load(path, weights_only=False)
+    for k in ("representation", "contact_joints", "stance_speed"):
+        state["config"]["window"].pop(k)
+    state["config"]["mask"].pop("predict_goal")
+    from motiongen.models import build_model, model_config
+    mcfg = model_config("tiny", **{k: v for k, v in state["config"]["model"].items() if k != "name"})
+    old = build_model(mcfg, 22, 2, 16)                                         # 66 channels, as then
+    state["ema"] = state["model"] = old.state_dict()
+    state["stats"] = {"center": state["stats"]["center"][:66], "half_range": state["stats"]["half_range"][:66]}
+    torch.save(state, tmp_path / "old.pt")
+    ld = load_model(tmp_path / "old.pt")
+    assert ld.layout.channels == 66 and ld.layout.representation == "absolute" and not ld.predict_goal
+    assert ld.fps == 30.0                                                      # no fps recorded: the old assumption
+    new = load_model(path)
+    assert new.layout.channels == 70 and new.predict_goal

@@ -10,6 +10,7 @@ import pytest
 import torch
 from torch import nn
 
+from motiongen.data.representation import Layout
 from motiongen.data.windows import NormStats, WindowConfig
 from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, MaskConfig
 from motiongen.errors import ConfigError
@@ -45,12 +46,14 @@ class Oracle(nn.Module):
         return self.diffusion.eps_from_x0(x_t, x0n, t)
 
 
-def _loaded():
+def _loaded(model_cls=None):
     # the oracle returns ε; no clipping: world offsets leave [-1, 1]
     diffusion = GaussianDiffusion(DiffusionConfig(clip_x0=1e6, prediction="eps"))
     stats = NormStats(np.zeros(J * 3, np.float32), np.full(J * 3, 2.0, np.float32))
-    return types.SimpleNamespace(model=Oracle(diffusion, stats).eval(), diffusion=diffusion, stats=stats,
-                                 joint_set=BODY, action_names=["walk", "sit"], window=WindowConfig(),
+    window = WindowConfig(representation="absolute", contact_joints=())
+    return types.SimpleNamespace(model=(model_cls or Oracle)(diffusion, stats).eval(), diffusion=diffusion,
+                                 stats=stats, joint_set=BODY, action_names=["walk", "sit"], window=window,
+                                 layout=Layout.for_window(window, BODY), predict_goal=False, fps=30.0,
                                  mask=MaskConfig(max_transition=2), device=torch.device("cpu"))
 
 
@@ -116,3 +119,38 @@ def test_max_episodes_warns_and_unknown_action_errors():
     assert not m.completed and np.isnan(m.arrival_error).all()
     with pytest.raises(ConfigError, match="knows: walk, sit"):
         generate(_loaded(), None, (0.0, 0.0), [Goal([0.0, 1.0], "dance")])
+
+
+class Garbage(nn.Module):
+    """A network whose clean-motion estimate is uniform noise over the normalised range (joints
+    anywhere within 2 m of the window frame): whatever it says, the motion must stay one body."""
+
+    def __init__(self, diffusion, stats):
+        super().__init__()
+        self.p = nn.Parameter(torch.zeros(1))
+        self.scene_encoder = None
+        self.diffusion = diffusion
+
+    def forward(self, x_t, t, cond, known_mask=None):
+        x0 = torch.rand(x_t.shape, generator=torch.Generator().manual_seed(int(t[0])), dtype=x_t.dtype) * 2 - 1
+        return self.diffusion.eps_from_x0(x_t, x0, t)
+
+
+def test_one_body_across_seams_whatever_the_network_predicts():
+    from motiongen.eval.metrics import bone_consistency, bone_lengths
+    from motiongen.skeleton import BODY_PARENTS
+
+    with pytest.warns(UserWarning, match="max_episodes"):
+        m = generate(_loaded(Garbage), None, (0.0, 0.0), [Goal([0.0, 3.0])], num_samples=2,
+                     generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 3),
+                     loop=LoopConfig(max_episodes=4))
+    for s in range(2):
+        raw = bone_consistency(m.joints_raw[s], BODY_PARENTS)
+        assert raw.cv_median > 0.2                                        # the network's bones are garbage ...
+        out = bone_consistency(m.joints[s], BODY_PARENTS)
+        assert out.max_deviation < 1e-4                                   # ... the output's are one body's
+        proj = bone_lengths(m.model_joints[s], BODY_PARENTS)              # model-rate frames, every seam
+        np.testing.assert_allclose(proj, np.broadcast_to(proj[0], proj.shape), atol=1e-4)
+        # the SMPL-X parameters pose exactly the output joints
+        b = m.bodies[s]
+        assert b.joints.shape == m.joints[s].shape and np.allclose(b.joints, m.joints[s])

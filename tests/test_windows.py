@@ -37,11 +37,15 @@ def test_normalisation_is_min_max_on_train(tmp_path):
     wd = WindowDataset(ds, "train", cfg)
     x = torch.stack([wd[i]["motion"] for i in range(len(wd))])  # (W, L, D)
     flat = x.reshape(-1, x.shape[-1])
-    varying = torch.as_tensor(wd.stats.half_range > 0.0100001)
+    P = wd.layout.pose_channels
+    # stance channels are labels in {-1, +1}, kept as they are
+    assert wd.layout.num_contacts == 4 and set(flat[:, P:].unique().tolist()) <= {-1.0, 1.0}
+    flat = flat[:, :P]
+    varying = torch.as_tensor(wd.stats.half_range[:P] > 0.0100001)
     assert torch.allclose(flat.max(0).values[varying], torch.ones(int(varying.sum())), atol=1e-5)
     assert torch.allclose(flat.min(0).values[varying], -torch.ones(int(varying.sum())), atol=1e-5)
     s = NormStats.from_state_dict(wd.stats.state_dict())
-    assert np.allclose(s.denormalize(s.normalize(np.ones(66, np.float32))), 1)
+    assert np.allclose(s.denormalize(s.normalize(np.ones(70, np.float32))), 1)
     # val windows use the train statistics
     val = WindowDataset(ds, "val", cfg, wd.stats)
     assert np.array_equal(val.stats.center, wd.stats.center)
@@ -51,9 +55,9 @@ def test_item_contents_and_goal(tmp_path):
     ds = _ds(tmp_path)
     wd = WindowDataset(ds, "train", WindowConfig())
     it = wd[5]
-    assert it["motion"].shape == (16, 66) and it["actions"].shape == (16, 2)
+    assert it["motion"].shape == (16, 66 + 4) and it["actions"].shape == (16, 2)
     assert it["scene"].shape == (32, 32, 32) and it["scene"].dtype == torch.float32
-    local = wd.stats.denormalize(it["motion"]).reshape(16, 22, 3)
+    local, _ = wd.layout.decode(wd.stats.denormalize(it["motion"]))                     # (16, 22, 3)
     assert torch.allclose(it["goal"], local[-1, 0], atol=1e-4)
     # the goal maps back to the world pelvis of the window's last frame
     world_goal = transform_points(it["to_world"].numpy(), it["goal"].numpy()[None])[0]

@@ -12,7 +12,7 @@ rotations, translations, one β per sequence) with L-BFGS on
   + w_prior  · mean ‖R − R_init‖²_F              stay near the initialisation (twist is
                                                  barely observable from joints)
   + w_betas  · ‖β‖² / nβ                         shape prior
-  + w_contact · mean over feet in contact of ‖J_{t+1} − J_t‖²  (optional)
+  + w_contact · mean over contact spans of ‖J_t − mean_span J‖²  (optional foot locking)
 
 (seed 000: 3D keypoint L2, second-difference smoothness of keypoints and joint angles, ℓ2
 shape prior). Only joint kinematics run per iteration (`BodyModel.joints_from_rotmats`), never
@@ -54,6 +54,9 @@ class RefineConfig:
     w_prior: float = 1e-4
     w_betas: float = 1e-5
     w_contact: float = 0.0
+    w_reach: float = 0.0            # weight of `reach` targets (a hand on an object)
+    w_floor: float = 0.0            # joint centres below floor_y (squared depth, summed over joints)
+    floor_y: float = 0.0
     optimize_betas: bool = True
     mlp_smooth_sigma: float = 2.0   # frames; Gaussian smoothing of the per-frame MLP rotations
     threads: int = 1                # torch intra-op threads during refinement; 0: unchanged
@@ -97,11 +100,19 @@ def _min_rotation(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
     K = skew(v)
     eye = torch.eye(3, dtype=a.dtype, device=a.device).expand(K.shape)
-    return eye + K + K @ K / (1 + c).clamp(min=1e-6)
+    R = eye + K + K @ K / (1 + c).clamp(min=1e-6)
+    # Opposite directions: the formula divides by ~0; turn half-way round any axis normal to a.
+    # (A target can point anywhere: an untrained network's bones do.)
+    other = torch.where(a[..., :1].abs() < 0.9, torch.tensor([1.0, 0, 0], dtype=a.dtype, device=a.device),
+                        torch.tensor([0, 1.0, 0], dtype=a.dtype, device=a.device))
+    n = torch.nn.functional.normalize(torch.cross(a, other, dim=-1), dim=-1)
+    half_turn = 2 * n[..., :, None] * n[..., None, :] - eye
+    return torch.where(1 + c < 1e-3, half_turn, R)
 
 
 def analytic_init(joints: torch.Tensor, rest: torch.Tensor, rot_init: torch.Tensor | None = None) -> torch.Tensor:
-    """Inverse kinematics by swing correction: joints (T, 22, 3), rest joints (22, 3),
+    """Inverse kinematics by swing correction: joints (T, 22, 3), rest joints (22, 3) (or one
+    rest pose per frame, (T, 22, 3)),
     optional local rotations (T, 22, 3, 3) to start from (e.g. the MLP's) -> local rotmats
     (T, 22, 3, 3) whose bone directions match the targets exactly (lengths are the rest ones).
 
@@ -120,9 +131,13 @@ def analytic_init(joints: torch.Tensor, rest: torch.Tensor, rot_init: torch.Tens
         Gc = Gp @ rot_init[:, j] if rot_init is not None else Gp   # candidate global rotation
         kids = _CHILDREN[j]
         if kids:
-            a = (rest[kids] - rest[j]).expand(T, len(kids), 3) @ Gc.transpose(-1, -2)   # bones (T, K, 3)
+            bones = rest[..., kids, :] - rest[..., j:j + 1, :]                         # (K, 3) or (T, K, 3)
+            a = bones.expand(T, len(kids), 3) @ Gc.transpose(-1, -2)                # bones (T, K, 3)
             b = joints[:, kids] - joints[:, j:j + 1]                                  # targets (T, K, 3)
             Gc = (_kabsch(a, b) if len(kids) > 1 else _min_rotation(a[:, 0], b[:, 0])) @ Gc
+            # Re-orthonormalise: near-opposite directions leave float32 rounding of ~1e-4 in the
+            # closed form, which compounds down the chain into stretched bones.
+            Gc = rot6d_to_matrix(matrix_to_rot6d(Gc))
         G[j] = Gc
         R[j] = Gp.transpose(-1, -2) @ Gc
     return torch.stack(R, 1)
@@ -150,24 +165,53 @@ def smooth_rotations(R: torch.Tensor, sigma: float) -> torch.Tensor:
 
 # ---- refinement ------------------------------------------------------------------------
 
+def contact_spans(contact: torch.Tensor) -> tuple[torch.Tensor, int]:
+    """Span ids (T, C) long for contact flags (T, C) bool: every run of True frames of a column
+    gets its own id (0..n-1, numbered column by column), -1 outside contact. Returns (ids, n)."""
+    c = contact.to(torch.long)
+    start = c.clone()
+    start[1:] = c[1:] * (1 - c[:-1])                                            # 1 where a run begins
+    order = start.T.reshape(-1).cumsum(0).reshape(start.shape[1], -1).T - 1     # (T, C) running count
+    ids = torch.where(contact, order, torch.full_like(order, -1))
+    return ids, int(start.sum())
+
+
+def lock_loss(J: torch.Tensor, ids: torch.Tensor, n: int, joints) -> torch.Tensor:
+    """Mean squared distance of each locked joint from its own mean over its contact span:
+    zero when a planted foot stays put, whatever the spot (no target to choose). J (T, J, 3),
+    ids (T, C) from `contact_spans`, joints (C,) joint index per column."""
+    P = J[:, list(joints)]                                                     # (T, C, 3)
+    on = ids >= 0
+    sel, idx = P[on], ids[on]                                                  # (N, 3), (N,)
+    sums = torch.zeros(n, 3, dtype=J.dtype, device=J.device).index_add_(0, idx, sel)
+    counts = torch.zeros(n, dtype=J.dtype, device=J.device).index_add_(0, idx, torch.ones_like(idx, dtype=J.dtype))
+    mean = sums / counts[:, None]
+    return (sel - mean[idx]).square().sum(-1).mean()
+
+
 def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_init: torch.Tensor,
            cfg: RefineConfig = RefineConfig(), contact: torch.Tensor | None = None,
-           fixed_betas: bool = False):
+           fixed_betas: bool = False, contact_joints=FOOT_JOINTS, transl_init: torch.Tensor | None = None,
+           reach: tuple | None = None):
     """Refine (T, 22, 3, 3) rotations, (T, 3) translations and (nβ,) betas to fit target
-    joints (T, 22, 3). Returns (rotmats, transl, betas, steps, history)."""
+    joints (T, 22, 3). contact (T, C) bool flags `contact_joints` as planted (foot locking,
+    weight `cfg.w_contact`). reach = (frames (N,), joints (N,), points (N, 3), weights (N,)):
+    joint positions to reach at those frames (weight `cfg.w_reach`; a weighted mean, so
+    weights ramp a reach in and out). Returns (rotmats, transl, betas, steps, history)."""
     T = target.shape[0]
     R0 = rot_init.detach()
     rot6d = matrix_to_rot6d(R0).clone().requires_grad_(True)                   # (T, 22, 6)
     betas = betas_init.detach().clone().requires_grad_(cfg.optimize_betas and not fixed_betas)
     with torch.no_grad():
-        transl0 = target[:, 0] - bm.rest_joints(betas)[0]                      # (T, 3) pelvis on target
-    transl = transl0.clone().requires_grad_(True)
+        transl0 = target[:, 0] - bm.rest_joints(betas)[0] if transl_init is None else transl_init
+    transl = transl0.detach().clone().requires_grad_(True)                     # (T, 3)
     params = [rot6d, transl] + ([betas] if betas.requires_grad else [])
     nb = max(betas.numel(), 1)
     # Scaled so that a 1 cm mean error is a loss of about 1: keeps L-BFGS tolerances meaningful.
     scale = 1e4
-    if contact is not None:
-        both = (contact[1:] & contact[:-1]).to(target.dtype)                  # (T-1, 4)
+    lock = None
+    if contact is not None and cfg.w_contact and bool(contact.any()):
+        lock = contact_spans(contact)
 
     def loss_fn():
         R = rot6d_to_matrix(rot6d)                                             # (T, 22, 3, 3)
@@ -184,9 +228,13 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
             loss = loss + cfg.w_prior * (R - R0).square().sum((-1, -2)).mean()
         if betas.requires_grad and cfg.w_betas:
             loss = loss + cfg.w_betas * betas.square().sum() / nb
-        if contact is not None and cfg.w_contact and T >= 2:
-            vel = (J[1:, list(FOOT_JOINTS)] - J[:-1, list(FOOT_JOINTS)]).square().sum(-1)   # (T-1, 4)
-            loss = loss + cfg.w_contact * (vel * both).sum() / both.sum().clamp(min=1)
+        if lock is not None:
+            loss = loss + cfg.w_contact * lock_loss(J, *lock, contact_joints)
+        if cfg.w_floor:
+            loss = loss + cfg.w_floor * (cfg.floor_y - J[..., 1]).clamp(min=0).square().sum(-1).mean()
+        if reach is not None and cfg.w_reach:
+            f, j, p, w = reach
+            loss = loss + cfg.w_reach * (w * (J[f, j] - p).square().sum(-1)).sum() / w.sum().clamp(min=1e-9)
         return loss * scale
 
     with torch_threads(cfg.threads):
@@ -272,7 +320,8 @@ def fit_joints(joints, body_model: BodyModel | None = None, mlp: JointsToBodyMLP
     body_model: default `load_body_model()` (user file or procedural).
     mlp: a `JointsToBodyMLP`, a checkpoint path, "auto" (`default_mlp`), or None (analytic init).
     betas: (nβ,) known shape (kept fixed) or None (estimated).
-    contact: (T, 4) bool for `skeleton.FOOT_JOINTS`, used when config.w_contact > 0.
+    contact: (T, 4) bool planted flags for `skeleton.FOOT_JOINTS`: with config.w_contact > 0 each
+    planted span of a foot joint is held in one place (foot locking, `lock_loss`).
     refine_steps: overrides config.max_steps; 0 returns the initialisation.
     """
     X = joints if isinstance(joints, torch.Tensor) else torch.as_tensor(np.array(joints))  # copy: inputs may be read-only memmaps

@@ -126,6 +126,16 @@ class BodyModel(torch.nn.Module):
 
     # ---- mesh ------------------------------------------------------------------------
 
+    @property
+    def template_vertices(self) -> np.ndarray:
+        """(V, 3) rest-pose template (mean shape), float64."""
+        return np.asarray(self._data["v_template"], np.float64)
+
+    @property
+    def skinning_weights(self) -> np.ndarray:
+        """(V, 55) linear blend skinning weights."""
+        return np.asarray(self._data["weights"])
+
     def _mesh(self, device, dtype) -> dict:
         if self._mesh_buffers is None or self._mesh_buffers["v_template"].device != torch.device(device):
             d = self._data
@@ -142,11 +152,14 @@ class BodyModel(torch.nn.Module):
         return self._mesh_buffers
 
     def vertices(self, global_orient, body_pose, transl=None, betas=None, left_hand_pose=None,
-                 right_hand_pose=None, jaw_pose=None, leye_pose=None, reye_pose=None) -> torch.Tensor:
+                 right_hand_pose=None, jaw_pose=None, leye_pose=None, reye_pose=None,
+                 vertex_ids=None) -> torch.Tensor:
         """Full mesh by linear blend skinning with pose blend shapes: (..., V, 3).
 
         Hand poses are full axis-angle (..., 45) (no PCA, flat-hand mean); omitted parts are
-        zero. Expression is zero.
+        zero. Expression is zero. vertex_ids (K,): pose only those vertices, (..., K, 3) (the
+        joints still come from the whole shaped template); the cost of blend shapes and skinning
+        scales with K, which makes per-frame meshes of long motions affordable (penetration).
         """
         dev, dt = self.J_template.device, self.J_template.dtype
         R_body = torch.cat([_root_rotmat(global_orient), _body_rotmats(body_pose)], -3)   # (..., 22, 3, 3)
@@ -165,13 +178,19 @@ class BodyModel(torch.nn.Module):
         if betas is not None:
             v = v + torch.einsum("vck,...k->...vc", m["shapedirs"], betas.to(dt))           # (..., V, 3)
         J = torch.einsum("jv,...vc->...jc", m["J_regressor"], v)                           # (..., 55, 3)
+        posedirs, weights = m["posedirs"], m["weights"]
+        if vertex_ids is not None:
+            ids = torch.as_tensor(vertex_ids, dtype=torch.long, device=dev)
+            v = v[..., ids, :]
+            cols = (3 * ids[:, None] + torch.arange(3, device=dev)).reshape(-1)              # (3K,) x, y, z of each
+            posedirs, weights = posedirs[:, cols], weights[ids]
         pose_feat = (R[..., 1:, :, :] - eye).flatten(-3)                                     # (..., 486)
-        v = v + (pose_feat @ m["posedirs"]).reshape(batch + (-1, 3))                        # (..., V, 3)
+        v = v + (pose_feat @ posedirs).reshape(batch + (-1, 3))                             # (..., V, 3)
         P, G = forward_kinematics(R, J, self.full_parents, self._full_levels)
         # Skinning transforms map rest points to posed: x -> G x + (P - G J).
         t = P - (G @ J[..., None].expand(batch + J.shape[-2:] + (1,)))[..., 0]              # (..., 55, 3)
-        Gv = torch.einsum("vj,...jab->...vab", m["weights"], G)                             # (..., V, 3, 3)
-        tv = torch.einsum("vj,...ja->...va", m["weights"], t)                               # (..., V, 3)
+        Gv = torch.einsum("vj,...jab->...vab", weights, G)                                  # (..., V, 3, 3)
+        tv = torch.einsum("vj,...ja->...va", weights, t)                                    # (..., V, 3)
         out = (Gv @ v[..., None])[..., 0] + tv
         return out if transl is None else out + transl[..., None, :]
 

@@ -16,6 +16,7 @@ import torch
 from torch.utils.data import Dataset
 
 from motiongen.data.format import MotionDataset, release
+from motiongen.data.representation import DEFAULT_CONTACT_JOINTS, Layout, stance_labels
 from motiongen.errors import ConfigError, DataError
 from motiongen.geometry import canonical_frame, invert_rigid, transform_points
 from motiongen.skeleton import PELVIS
@@ -33,6 +34,13 @@ class WindowConfig:
     grid_res: tuple[int, int, int] = (32, 32, 32)
     grid_lo: tuple[float, float, float] = (-0.6, 0.0, -0.6)
     grid_hi: tuple[float, float, float] = (0.6, 1.2, 0.6)
+    # Features (motiongen.data.representation): "absolute" = every joint in the window frame
+    # (the public TRUMANS code), "root" = pelvis + joints relative to it (measured worse at goals
+    # and feet, docs/models.md). Stance channels for `contact_joints` (names; () for none):
+    # dataset contact label and slower than `stance_speed` m/s.
+    representation: str = "absolute"
+    contact_joints: tuple[str, ...] = DEFAULT_CONTACT_JOINTS
+    stance_speed: float = 0.2
 
     def span(self) -> int:
         """Frames of the source sequence one window covers."""
@@ -83,12 +91,14 @@ def canonicalize(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def compute_stats(ds: MotionDataset, cfg: WindowConfig, split: str = "train", min_half_range: float = 1e-2) -> NormStats:
-    """Min–max statistics of canonicalised windows over a split, sequence by sequence so memory
-    stays bounded. Channels that barely vary (the first frame's pelvis x, z are always 0) get
-    `min_half_range` so normalisation never divides by ~0."""
-    J = ds.joint_set.num_joints
-    lo = np.full(J * 3, np.inf)
-    hi = np.full(J * 3, -np.inf)
+    """Min–max statistics of canonicalised, encoded windows over a split, sequence by sequence
+    so memory stays bounded. Channels that barely vary (the first frame's pelvis x, z are always
+    0) get `min_half_range` so normalisation never divides by ~0; stance channels keep their
+    fixed {-1, +1} scale."""
+    layout = Layout.for_window(cfg, ds.joint_set)
+    P = layout.pose_channels
+    lo = np.full(P, np.inf)
+    hi = np.full(P, -np.inf)
     span = cfg.span()
     for seq in ds.split_sequences(split):
         if seq.num_frames < span:
@@ -97,13 +107,28 @@ def compute_stats(ds: MotionDataset, cfg: WindowConfig, split: str = "train", mi
         starts = np.arange(0, seq.num_frames - span + 1, cfg.hop)
         idx = starts[:, None] + cfg.stride * np.arange(cfg.length)[None]        # (W, L)
         local, _ = canonicalize(frames[idx])                                    # (W, L, J, 3)
-        flat = local.reshape(-1, J * 3)
+        flat = Layout(layout.num_joints, layout.representation).encode(local).reshape(-1, P)
         lo, hi = np.minimum(lo, flat.min(0)), np.maximum(hi, flat.max(0))
     release(ds.joints)
     if not np.isfinite(lo).all():
         raise DataError(ds.root, split, f"no sequence in split {split!r} is long enough for a window of {span} frames")
     half = np.maximum((hi - lo) / 2, min_half_range)
-    return NormStats(((hi + lo) / 2).astype(np.float32), half.astype(np.float32))
+    c_fix, h_fix = layout.fixed_stats()
+    return NormStats(np.concatenate([(hi + lo) / 2, c_fix]).astype(np.float32),
+                     np.concatenate([half, h_fix]).astype(np.float32))
+
+
+def dataset_stance(ds: MotionDataset, layout: Layout, stance_speed: float) -> np.ndarray:
+    """(N, C) bool stance labels of every frame (computed per sequence: speeds never cross a
+    sequence boundary). Small: N x 4 bools."""
+    out = np.zeros((ds.num_frames, layout.num_contacts), bool)
+    if layout.num_contacts:
+        for seq in ds.sequences:
+            out[seq.start:seq.end] = stance_labels(np.asarray(ds.joints[seq.start:seq.end]),
+                                                   np.asarray(ds.contact[seq.start:seq.end]),
+                                                   layout.contact_joints, ds.fps, stance_speed)
+        release(ds.joints)
+    return out
 
 
 class WindowDataset(Dataset):
@@ -114,7 +139,12 @@ class WindowDataset(Dataset):
             raise ConfigError(f"window length must be >= 2 and stride, hop >= 1 (got {cfg.length}, {cfg.stride}, {cfg.hop})")
         self.ds, self.split, self.cfg = ds, split, cfg
         self.starts = window_starts(ds, split, cfg)
+        self.layout = Layout.for_window(cfg, ds.joint_set)
         self.stats = stats if stats is not None else compute_stats(ds, cfg)
+        if len(self.stats.center) != self.layout.channels:
+            raise ConfigError(f"normalisation statistics have {len(self.stats.center)} channels, the window layout "
+                              f"{self.layout.channels}")
+        self.stance = dataset_stance(ds, self.layout, cfg.stance_speed)
         self._offsets = cfg.stride * np.arange(cfg.length)
         from motiongen.data.scene import LocalGridSpec
         self.spec = LocalGridSpec(tuple(cfg.grid_res), (cfg.grid_lo[0], cfg.grid_hi[0]),
@@ -131,8 +161,7 @@ class WindowDataset(Dataset):
         frames = self.window_frames(i)                                           # (L,)
         joints = np.asarray(self.ds.joints[frames], np.float64)                  # (L, J, 3)
         local, T = canonicalize(joints)                                          # (L, J, 3), (4, 4)
-        L, J, _ = local.shape
-        motion = self.stats.normalize(local.reshape(L, J * 3).astype(np.float32))
+        motion = self.stats.normalize(self.layout.encode(local, self.stance[frames]).astype(np.float32))  # (L, D)
         item = {
             "motion": torch.from_numpy(motion),
             "actions": torch.from_numpy(np.asarray(self.ds.actions[frames], np.float32)),

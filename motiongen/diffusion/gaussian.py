@@ -115,8 +115,9 @@ class GaussianDiffusion:
     def training_losses(self, model, x0: Tensor, t: Tensor, cond, known: Tensor | None = None,
                         known_mask: Tensor | None = None, noise: Tensor | None = None,
                         generator: torch.Generator | None = None,
-                        channel_weights: Tensor | None = None) -> dict[str, Tensor]:
-        """Loss on the configured target over the free (not known) entries.
+                        channel_weights: Tensor | None = None, loss_mask: Tensor | None = None) -> dict[str, Tensor]:
+        """Loss on the configured target over the free (not known) entries, or over `loss_mask`
+        (B, L, D) bool when given (e.g. free entries plus goal entries the model must predict).
 
         channel_weights (D,): optional per-channel weights of the loss (a weighted mean over the
         free entries), e.g. to make the root trajectory count as much as the pose.
@@ -139,7 +140,10 @@ class GaussianDiffusion:
         else:
             per_entry = F.mse_loss(out, target, reduction="none")
         sq = (out.detach() - target) ** 2
-        free = torch.ones_like(out) if known_mask is None else (~known_mask).to(out.dtype)      # (B, L, D)
+        if loss_mask is not None:
+            free = loss_mask.to(out.dtype)                                                    # (B, L, D)
+        else:
+            free = torch.ones_like(out) if known_mask is None else (~known_mask).to(out.dtype)
         n = free.sum().clamp(min=1)
         mse, free_fraction = (sq * free).sum() / n, free.mean()
         if channel_weights is None:

@@ -1,7 +1,8 @@
 """Known-entry masks for inpainting conditioning.
 
-Channel layout: D = J*3, joint j occupies channels 3j..3j+2 as (x, y, z); the pelvis is
-joint 0 (channels 0, 1, 2). The same builder (``known_mask``) makes sampling-time masks and,
+Channel layout (motiongen.data.representation): joint j occupies channels 3j..3j+2 as
+(x, y, z); the pelvis is joint 0 (channels 0, 1, 2); D may exceed 3J (stance channels follow
+the pose). Transition frames pin every channel; goal entries address pelvis/hand channels. The same builder (``known_mask``) makes sampling-time masks and,
 through ``sample_known_mask``, the random training masks, so the model trains on exactly the
 patterns it will be asked to complete.
 """
@@ -21,17 +22,21 @@ class MaskConfig:
     p_transition: float = 0.9   # probability that a window has pinned transition frames
     max_transition: int = 2     # k ~ U{1..max} when it does (reference: 2)
     p_goal_xz: float = 0.9      # probability of pinning the last-frame pelvis x, z
-    p_goal_y: float = 0.0       # probability of also pinning pelvis y (given goal x, z)
+    p_goal_y: float = 0.5       # probability of also giving pelvis y (given goal x, z): a seat's height
     p_hand: float = 0.0         # probability of pinning a hand joint (all of x, y, z) at the last frame
     hand_joint: int = 21        # SMPL-X right wrist
     goal_joint: int = 0         # pelvis
+    # True: goal entries condition the model and are part of its loss, and samplers keep the
+    # model's own prediction there (only transition frames are written into the result), so
+    # the goal distance measures the model. False: goals are pinned like transitions (reference).
+    predict_goal: bool = True
 
 
 def known_mask(batch: int, window: int, num_joints: int, transition: int | Tensor = 0,
                goal_xz: bool | Tensor = False, goal_y: bool | Tensor = False,
                hand: bool | Tensor = False, hand_joint: int = 21, goal_joint: int = 0,
-               device: torch.device | str = "cpu") -> Tensor:
-    """(B, L, J*3) bool. Scalars apply to the whole batch; (B,) tensors per sample.
+               device: torch.device | str = "cpu", channels: int | None = None) -> Tensor:
+    """(B, L, D) bool, D = `channels` (default 3J). Scalars apply to the whole batch; (B,) tensors per sample.
 
     transition k: first k frames, all channels. goal_xz / goal_y: last frame, ``goal_joint``
     x, z / y. hand: last frame, ``hand_joint`` x, y, z.
@@ -46,7 +51,8 @@ def known_mask(batch: int, window: int, num_joints: int, transition: int | Tenso
     if bool((k > L).any()) or bool((k < 0).any()):
         raise ConfigError(f"transition frames must be in 0..{L}")
     frames = torch.arange(L, device=device)
-    mask = (frames[None, :] < k[:, None])[:, :, None].expand(B, L, 3 * J).clone()  # (B, L, D)
+    D = 3 * J if channels is None else int(channels)
+    mask = (frames[None, :] < k[:, None])[:, :, None].expand(B, L, D).clone()  # (B, L, D)
     g = 3 * goal_joint
     mask[:, -1, g + 0] |= as_b(goal_xz, torch.bool)
     mask[:, -1, g + 2] |= as_b(goal_xz, torch.bool)
@@ -59,8 +65,8 @@ def known_mask(batch: int, window: int, num_joints: int, transition: int | Tenso
 
 def sample_known_mask(batch: int, window: int, num_joints: int, cfg: MaskConfig | None = None,
                       generator: torch.Generator | None = None,
-                      device: torch.device | str = "cpu") -> Tensor:
-    """Random training masks (B, L, J*3) bool drawn per sample from ``cfg``."""
+                      device: torch.device | str = "cpu", channels: int | None = None) -> Tensor:
+    """Random training masks (B, L, D) bool drawn per sample from ``cfg``."""
     cfg = cfg if cfg is not None else MaskConfig()
     if cfg.max_transition >= window:
         raise ConfigError(f"mask.max_transition {cfg.max_transition} must be < window {window}")
@@ -73,4 +79,29 @@ def sample_known_mask(batch: int, window: int, num_joints: int, cfg: MaskConfig 
     goal_y = goal_xz & (u[2] < cfg.p_goal_y)
     hand = u[3] < cfg.p_hand
     return known_mask(batch, window, num_joints, k.to(device), goal_xz.to(device), goal_y.to(device),
-                      hand.to(device), cfg.hand_joint, cfg.goal_joint, device)
+                      hand.to(device), cfg.hand_joint, cfg.goal_joint, device, channels)
+
+
+def transition_mask(mask: Tensor) -> Tensor:
+    """(B, L, D) bool: the entries of whole pinned frames (transitions). These are the past:
+    samplers write them into the result. Other known entries (goals) only condition the model,
+    which predicts them like any free entry."""
+    return mask.all(-1, keepdim=True).expand_as(mask)
+
+
+def predicts_goal(cfg: MaskConfig | None, prediction: str) -> bool:
+    """Goals are predicted only by x0-predicting models: an ε or v target at an entry whose
+    input is clean carries no information (the noise never reached it)."""
+    return (cfg if cfg is not None else MaskConfig()).predict_goal and prediction == "x0"
+
+
+def loss_mask(mask: Tensor, predict_goal: bool) -> Tensor:
+    """(B, L, D) bool: entries the training loss covers for known-entry mask `mask`: all but the
+    transition frames when goals are predicted, else all free entries."""
+    return ~transition_mask(mask) if predict_goal else ~mask
+
+
+def replace_mask(mask: Tensor, predict_goal: bool) -> Tensor:
+    """(B, L, D) bool: entries a sampler writes into its result (the complement of what the
+    model is trained to predict there)."""
+    return transition_mask(mask) if predict_goal else mask

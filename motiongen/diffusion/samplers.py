@@ -122,12 +122,14 @@ def sample(diffusion: GaussianDiffusion, model, shape: tuple[int, int, int], con
            steps: int = 25, eta: float = 0.0, guidance_scale: float = 1.0,
            generator: torch.Generator | None = None, progress: bool = False,
            x_prior: Tensor | None = None, cfg_batched: bool = True, clip_x0=_FROM_CONFIG,
-           device: torch.device | str | None = None) -> Tensor:
+           device: torch.device | str | None = None, replace_mask: Tensor | None = None) -> Tensor:
     """Draw x0 of ``shape`` (B, L, D).
 
-    known / known_mask (B, L, D): entries pinned to the given clean values; they are written
-    into x before every model call and into the result (the same input the model saw in
-    training). guidance_scale s: out = out_u + s·(out_c - out_u), unconditional = both
+    known / known_mask (B, L, D): entries given as clean values; they are written into x before
+    every model call (the same input the model saw in training). replace_mask (B, L, D), a
+    subset of known_mask (default: all of it), says which of them are also written into the
+    result; elsewhere the result is the model's own final prediction (goals the model was
+    trained to predict, `masks.replace_mask`). guidance_scale s: out = out_u + s·(out_c - out_u), unconditional = both
     conditions dropped (``cond.drop_all()``); s = 1 runs the conditional pass only.
     The chain starts from the marginal the schedule actually ends at:
     x_T = √ᾱ_T·x_prior + √(1-ᾱ_T)·ε, x_prior = 0 by default (known values where pinned);
@@ -190,5 +192,5 @@ def sample(diffusion: GaussianDiffusion, model, shape: tuple[int, int, int], con
             x = torch.where(known_mask, known, x)
         x = scheduler.step(predict(x, t), t, x, generator)
     if known is not None:
-        x = torch.where(known_mask, known, x)
+        x = torch.where(known_mask if replace_mask is None else replace_mask, known, x)
     return x

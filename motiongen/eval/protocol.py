@@ -27,9 +27,10 @@ import numpy as np
 from motiongen.errors import ConfigError
 from motiongen.eval import metrics as M
 from motiongen.sampling.goals import Goal, Route, plan_route, walkable_map
-from motiongen.skeleton import LEFT_HIP, PELVIS, RIGHT_HIP
+from motiongen.skeleton import LEFT_HIP, PELVIS, RIGHT_HIP, joint_set_for
 
 SETTINGS = ("static", "dynamic")
+MAX_ACTION_SECONDS = 10.0
 HAND_NAMES = ("left_wrist", "right_wrist", "left_index1", "right_index1")
 _SETTING_CODE = {"static": 0, "dynamic": 1}
 
@@ -41,7 +42,7 @@ class ProtocolConfig:
     interaction_pairs: int = 2          # static pairs that end at a seat (when the scene has one)
     static_actions: tuple = ("sit", "lie down")   # interactions a static pair may end with
     dynamic_action: str = "pick up"
-    action_seconds: float = 2.0         # how long the interaction is held once there
+    action_seconds: float | None = None  # how long the interaction is held; None: as long as the data did there (≤ 10 s)
     min_distance: float = 2.0           # start-end straight-line distance (m), halved if the room is too small
     body_radius: float = 0.25
     subgoal_spacing: float = 0.6
@@ -58,6 +59,7 @@ class Spot:
     action: str
     object_id: int | None = None
     object_pose: np.ndarray | None = None   # (4, 4) object -> world at the interaction's start
+    duration: float = 2.0               # seconds the data spends in the action there
 
 
 @dataclass
@@ -126,7 +128,7 @@ class SceneContext:
                         continue
                 if any(np.linalg.norm(xz - o.xz) < min_sep and o.object_id == oid for o in out):
                     continue
-                out.append(Spot(xz, action, oid, pose))
+                out.append(Spot(xz, action, oid, pose, (e - s) / self.ds.fps))
         return out
 
     def object_spots(self, action: str, reach: float = 0.8) -> list[Spot]:
@@ -304,7 +306,10 @@ def make_pairs(ctx: SceneContext, setting: str, cfg: ProtocolConfig, action_name
             spot = None
             if i in wants and spot_order:
                 spot = spots[spot_order[(n_spot + attempt // 10) % len(spot_order)]]
-                goal = Goal(spot.xz, spot.action, cfg.action_seconds)
+                # Held as long as the data holds it there, so model and data are compared on
+                # like segments (sit: 1.8-8.7 s in the test scenes, lie down: 10 s).
+                secs = cfg.action_seconds if cfg.action_seconds is not None else min(spot.duration, MAX_ACTION_SECONDS)
+                goal = Goal(spot.xz, spot.action, secs)
             else:
                 goal = Goal(_random_free(ctx, rng))
             if np.linalg.norm(goal.xz - start) < min_d:
@@ -352,15 +357,23 @@ def object_contact(ctx: SceneContext, joints, labelled, names, oid_poses, thresh
 
 
 def motion_metrics(ctx: SceneContext, joints, fps: float, names, labels, action_names, setting: str,
-                   cfg: ProtocolConfig, boundaries, objects=()) -> dict:
+                   cfg: ProtocolConfig, boundaries, objects=(), vertices=None) -> dict:
     """Per-trajectory metrics for joints (T, J, 3) with per-frame labels (T, A) bool.
-    objects: [(oid, poses (T, 4, 4))] for the dynamic setting's object contact/approach."""
+    objects: [(oid, poses (T, 4, 4))] for the dynamic setting's object contact/approach.
+    vertices: (T', V', 3) body-mesh vertices (any subset of frames and vertices) where the motion
+    has a body, for skin penetration."""
     j = np.asarray(joints, np.float64)
     pen = M.scene_penetration(j, ctx.grid, sdf=ctx.sdf)
     flo = M.floor_penetration(j)
-    out = {"foot_skating": M.foot_skating_ratio(j, fps), "penetration_frames": pen["frame_ratio"],
+    bones = M.bone_consistency(j, joint_set_for(names).parents)
+    out = {"foot_skating": M.foot_skating_ratio(j, fps), "slide_mps": M.grounded_slide(j, fps),
+           "bone_cv": bones.cv_median, "bone_max_dev": bones.max_deviation,
+           "penetration_frames": pen["frame_ratio"],
            "penetration_max_m": pen["max_depth"], "floor_penetration_frames": flo["frame_ratio"],
            "jerk": M.mean_jerk(j, fps)}
+    if vertices is not None:
+        vp = M.scene_penetration(np.zeros((len(vertices), 0, 3)), ctx.grid, vertices=vertices, sdf=ctx.sdf)
+        out["mesh_penetration_frames"], out["mesh_penetration_max_m"] = vp["frame_ratio"], vp["max_depth"]
     b = [x for x in boundaries if 1 <= x < len(j)]
     out["seam_ratio"] = M.seam_jump(j, b).ratio if b else float("nan")
     labels = np.asarray(labels, bool)
@@ -393,16 +406,33 @@ def motion_metrics(ctx: SceneContext, joints, fps: float, names, labels, action_
 @dataclass
 class PairResult:
     pair: Pair
-    per_sample: list[dict]              # k metric dicts
+    per_sample: list[dict]              # k metric dicts of the output motions
+    per_sample_raw: list[dict]          # the same metrics on the network's own joints (before the body)
     apd: float
     joints: np.ndarray                  # (k, T, J, 3) float32 world joints at 30 fps, the whole batch
     kept: list[np.ndarray]              # k arrays (T_s, J, 3): each sample up to its finish
+    kept_raw: list[np.ndarray]          # the same for the network's own joints
     completed: float                    # fraction of samples that reached the final goal
     wall_s: float
 
 
-def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler) -> PairResult:
-    """Sample k motions for one pair (one batch) and measure them."""
+def body_vertices(bm, body, frames: int, every_frame: int = 3, every_vertex: int = 8) -> np.ndarray:
+    """(T', V', 3) mesh vertices of the first `frames` frames of a `BodyMotion`: every 3rd frame,
+    every 8th vertex (enough to find skin in furniture; a fraction of the cost of whole meshes)."""
+    import torch
+
+    f = slice(0, frames, every_frame)
+    ids = np.arange(0, bm.num_vertices, every_vertex)
+    t = lambda a: torch.as_tensor(np.asarray(a)[f], dtype=bm.J_template.dtype)  # noqa: E731
+    with torch.no_grad():
+        v = bm.vertices(t(body.global_orient), t(body.body_pose), t(body.transl),
+                        torch.as_tensor(body.betas, dtype=bm.J_template.dtype), vertex_ids=ids)
+    return v.numpy()
+
+
+def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler, body_model=None) -> PairResult:
+    """Sample k motions for one pair (one batch) and measure them (the output, and the network's
+    own joints before they were put on a body)."""
     import torch
 
     from motiongen.sampling import LoopConfig, generate
@@ -416,7 +446,7 @@ def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler
         # generate warns when samples stop before the goal; the report counts them instead.
         warnings.simplefilter("ignore")
         motion = generate(loaded, ctx.grid, pair.start, route=pair.route, walkable=ctx.fmap, objects=objs,
-                          sampler=sampler, num_samples=cfg.k, generator=gen,
+                          sampler=sampler, num_samples=cfg.k, generator=gen, body_model=body_model,
                           loop=LoopConfig(max_episodes=cfg.max_episodes, out_fps=ctx.ds.fps, source_fps=ctx.ds.fps))
     wall = time.perf_counter() - t0
     names = list(motion.joint_names)
@@ -424,7 +454,7 @@ def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler
     joints = motion.joints                                                                   # (k, T, J, 3)
     boundaries = [int(b) for b in motion.episode_starts[1:]]
     goal_xz = pair.goal.xz
-    results, kept = [], []
+    results, raw_results, kept, kept_raw = [], [], [], []
     for s in range(cfg.k):
         # A sample that finished early idles while the batch goes on: cut it at its finish so
         # the padding does not dilute its metrics (APD below uses the full, equal-length batch).
@@ -432,29 +462,38 @@ def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler
         T = max(T, 4)
         js = joints[s, :T]                                                                   # (T, J, 3)
         kept.append(js)
+        kept_raw.append(motion.joints_raw[s, :T])
         lab = np.zeros((T, A), bool)                                                         # (T, A)
         a = motion.actions[s, :T]
         lab[np.flatnonzero(a >= 0), a[a >= 0]] = True
         oposes = [(pair.object_id, np.repeat(pair.object_pose[None], T, 0))] if target else []
-        m = motion_metrics(ctx, js, motion.fps, names, lab, list(motion.action_names), pair.setting, cfg,
-                           boundaries, oposes)
-        err = float(motion.arrival_error[s, -1])
-        f = int(motion.arrival_frame[s, -1])
-        if not np.isfinite(err):
-            # Never arrived within tolerance: its closest approach (after the last subgoal's
-            # predecessor) stands in, so misses still count with their real distance.
-            err = float(M.goal_distances(joints[s], goal_xz[None])[0])
-            hip = 0.5 * (joints[s][:, LEFT_HIP] + joints[s][:, RIGHT_HIP])
-            body = float(np.linalg.norm(hip[:, [0, 2]] - goal_xz, axis=-1).min())
-        else:
-            hip = 0.5 * (joints[s][f, LEFT_HIP] + joints[s][f, RIGHT_HIP])
-            body = float(np.linalg.norm(hip[[0, 2]] - goal_xz))
-        m["goal_dist_m"], m["goal_dist_body_m"] = err, body
-        m["_waypoints"] = M.goal_distances(joints[s], pair.route.subgoals).tolist()
-        results.append(m)
+        verts = None
+        if body_model is not None and motion.bodies is not None:
+            verts = body_vertices(body_model, motion.bodies[s], T)
+        for out, js_, v in ((results, js, verts), (raw_results, motion.joints_raw[s, :T], None)):
+            m = motion_metrics(ctx, js_, motion.fps, names, lab, list(motion.action_names), pair.setting, cfg,
+                               boundaries, oposes, vertices=v)
+            m.update(_goal_metrics(js_, motion.arrival_frame[s, -1], goal_xz, pair.route.subgoals))
+            out.append(m)
     apd = M.apd(joints) if cfg.k >= 2 else float("nan")
     done = float(np.mean(motion.finish_frame >= 0))
-    return PairResult(pair, results, apd, joints, kept, done, wall)
+    return PairResult(pair, results, raw_results, apd, joints, kept, kept_raw, done, wall)
+
+
+def _goal_metrics(joints, arrival: int, goal_xz, subgoals) -> dict:
+    """Distance of the pelvis and of the body's own centre (hips midpoint) to the final goal at
+    the arrival frame; never arrived: the closest approach stands in, so misses still count
+    with their real distance. Plus the waypoint distances for the trajectory fail rate."""
+    j = np.asarray(joints, np.float64)
+    hip = 0.5 * (j[:, LEFT_HIP] + j[:, RIGHT_HIP])[:, [0, 2]]                                   # (T, 2)
+    if 0 <= arrival < len(j):
+        pelvis = float(np.linalg.norm(j[arrival, PELVIS, [0, 2]] - goal_xz))
+        body = float(np.linalg.norm(hip[arrival] - goal_xz))
+    else:
+        pelvis = float(M.goal_distances(j, np.asarray(goal_xz)[None])[0])
+        body = float(np.linalg.norm(hip - goal_xz, axis=-1).min())
+    return {"goal_dist_m": pelvis, "goal_dist_body_m": body,
+            "_waypoints": M.goal_distances(j, subgoals).tolist()}
 
 
 # ---------------------------------------------------------------------------------------
@@ -529,23 +568,36 @@ def _mean(xs) -> float:
     return float(v.mean()) if v.size else float("nan")
 
 
+def _median(xs) -> float:
+    """Median over trajectories (grounded slide: a few floating samples are NaN, not zero)."""
+    v = np.asarray([x for x in xs if x is not None and np.isfinite(x)], np.float64)
+    return float(np.median(v)) if v.size else float("nan")
+
+
+BODY_KEYS = ("bone_cv", "bone_max_dev", "slide_mps", "foot_skating", "penetration_frames", "penetration_max_m",
+             "mesh_penetration_frames", "mesh_penetration_max_m", "floor_penetration_frames", "jerk", "seam_ratio")
+
+
 def summarize_model(results: list[PairResult], ref_motions: list[np.ndarray], fps: float,
-                    cfg: ProtocolConfig) -> dict:
-    """Setting-level numbers for the model row (means over samples; contact pooled over frames)."""
-    samples = [m for r in results for m in r.per_sample]
+                    cfg: ProtocolConfig, raw: bool = False) -> dict:
+    """Setting-level numbers for the model row (means over samples; contact pooled over frames).
+    raw: the row of the network's own joints instead of the output motions. Goal success
+    counts the body (hips midpoint), which no pin can put on the goal."""
+    samples = [m for r in results for m in (r.per_sample_raw if raw else r.per_sample)]
     if not samples:
         return {}
-    d_final = [m["goal_dist_m"] for m in samples]
+    d_final = [m["goal_dist_body_m"] for m in samples]
     succ = M.goal_success(np.asarray(d_final), (0.2, 0.5))
     out = {k: _mean(m.get(k) for m in samples) for k in
-           ("foot_skating", "penetration_frames", "penetration_max_m", "floor_penetration_frames", "jerk",
-            "seam_ratio", "goal_dist_m", "goal_dist_body_m", "object_dist_m")}
+           BODY_KEYS + ("goal_dist_m", "goal_dist_body_m", "object_dist_m")}
+    out["slide_mps"] = _median(m.get("slide_mps") for m in samples)
     out["success_0.2"], out["success_0.5"] = succ[0.2], succ[0.5]
     out["traj_fail_rate"] = M.trajectory_fail_rate([np.asarray(m["_waypoints"]) for m in samples], 0.5)
     hits, frames = sum(m["_contact_hits"] for m in samples), sum(m["_contact_frames"] for m in samples)
     out["contact_rate"] = hits / frames if frames else float("nan")
     out["apd_m"] = _mean(r.apd for r in results)
-    kab, kba = pskl_sets([x for r in results for x in r.kept], ref_motions, fps, cfg.pskl_frames)
+    mine = [x for r in results for x in (r.kept_raw if raw else r.kept)]
+    kab, kba = pskl_sets(mine, ref_motions, fps, cfg.pskl_frames)
     out["pskl_gen_ref"], out["pskl_ref_gen"] = kab, kba
     out["completed"] = _mean(r.completed for r in results)
     out["n_pairs"], out["n_samples"] = len(results), len(samples)
@@ -560,9 +612,8 @@ def summarize_reference(refs: list[ReferenceResult], fps: float, cfg: ProtocolCo
     motions = [x for r in refs for x in r.motions]
     if not seqs:
         return {}
-    out = {k: _mean(m.get(k) for m in seqs) for k in
-           ("foot_skating", "penetration_frames", "penetration_max_m", "floor_penetration_frames", "jerk",
-            "seam_ratio", "object_dist_m")}
+    out = {k: _mean(m.get(k) for m in seqs) for k in BODY_KEYS + ("object_dist_m",)}
+    out["slide_mps"] = _median(m.get("slide_mps") for m in seqs)
     for k in ("goal_dist_m", "goal_dist_body_m", "success_0.2", "success_0.5", "traj_fail_rate", "apd_m",
               "completed", "seconds_per_pair"):
         out[k] = None
@@ -592,20 +643,25 @@ class Evaluation:
     references: dict[str, list[ReferenceResult]]      # setting -> one per scene
     model: dict[str, dict]                             # setting -> summary (summarize_model)
     reference: dict[str, dict]                         # setting -> summary (summarize_reference)
+    model_raw: dict[str, dict] = field(default_factory=dict)   # setting -> the network's own joints
     contexts: dict[int, SceneContext] = field(repr=False, default_factory=dict)
     notes: list[str] = field(default_factory=list)
     wall_s: float = 0.0
 
 
 def evaluate(loaded, ds, scene_ids, cfg: ProtocolConfig, settings=SETTINGS, sampler=None,
-             progress: bool = True, log=None) -> Evaluation:
-    """Run the protocol: pairs for every scene and setting, k samples each, the reference row."""
+             progress: bool = True, log=None, body_model=None) -> Evaluation:
+    """Run the protocol: pairs for every scene and setting, k samples each, the reference row.
+    body_model: the motions' body model (default `load_body_model()`), also for skin penetration."""
     from tqdm import tqdm
 
     from motiongen.sampling import SamplerSettings
 
+    from motiongen.body.model import load_body_model
+
     t0 = time.perf_counter()
     sampler = sampler or SamplerSettings()
+    body_model = body_model if body_model is not None else load_body_model()
     say = log or (lambda m: None)
     names = list(loaded.action_names)
     ctxs = {sid: SceneContext(ds, sid, cfg.body_radius) for sid in scene_ids}
@@ -632,7 +688,7 @@ def evaluate(loaded, ds, scene_ids, cfg: ProtocolConfig, settings=SETTINGS, samp
         for st in settings:
             for pair in pairs[st]:
                 bar.set_postfix_str(f"{st} scene {pair.scene} pair {pair.index}")
-                results[st].append(run_pair(loaded, ctxs[pair.scene], pair, cfg, sampler))
+                results[st].append(run_pair(loaded, ctxs[pair.scene], pair, cfg, sampler, body_model))
                 bar.update(1)
     finally:
         bar.close()
@@ -640,11 +696,14 @@ def evaluate(loaded, ds, scene_ids, cfg: ProtocolConfig, settings=SETTINGS, samp
     refs = {st: [reference_metrics(ctxs[sid], st, cfg, ep) for sid in ctxs] for st in settings}
     ref_motions = [m for r in refs[settings[0]] for m in r.motions] if settings else []
     model = {st: summarize_model(results[st], ref_motions, ds.fps, cfg) for st in settings}
+    model_raw = {st: summarize_model(results[st], ref_motions, ds.fps, cfg, raw=True) for st in settings}
     reference = {st: summarize_reference(refs[st], ds.fps, cfg) for st in settings}
-    return Evaluation(list(settings), pairs, results, refs, model, reference, ctxs, notes, time.perf_counter() - t0)
+    return Evaluation(list(settings), pairs, results, refs, model, reference, model_raw, ctxs, notes,
+                      time.perf_counter() - t0)
 
 
 __all__ = ["SETTINGS", "ProtocolConfig", "Spot", "Pair", "SceneContext", "make_pairs", "pair_seed",
            "motion_metrics", "object_contact", "PairResult", "run_pair", "ReferenceResult", "reference_metrics",
            "summarize_model", "summarize_reference", "pskl_sets", "episode_frames", "SurfaceDistance",
+           "body_vertices",
            "Evaluation", "evaluate"]

@@ -14,25 +14,36 @@ from motiongen.errors import ConfigError, DataError
 from motiongen.staging import StagedOutputs
 
 # (key, label, unit, arrow): arrow says which way is better; "≈ref" = closer to the reference row.
-METRICS = [
+# Two tables: is it a body (one skeleton, planted feet, no skin in furniture), and does it do the task.
+BODY_METRICS = [
+    ("bone_cv", "bone CV", "ratio", "↓"),
+    ("bone_max_dev", "bone max dev", "ratio", "↓"),
+    ("slide_mps", "grounded slide", "m/s", "↓"),
     ("foot_skating", "foot skating", "ratio", "↓"),
-    ("goal_dist_m", "goal dist (pelvis)", "m", "↓"),
+    ("jerk", "mean jerk", "m/s³", "≈ref"),
+    ("seam_ratio", "seam jump", "ratio", "≈ref"),
+    ("penetration_frames", "scene pen. frames (joints)", "ratio", "↓"),
+    ("penetration_max_m", "scene pen. max (joints)", "m", "↓"),
+    ("mesh_penetration_frames", "scene pen. frames (mesh)", "ratio", "↓"),
+    ("mesh_penetration_max_m", "scene pen. max (mesh)", "m", "↓"),
+    ("floor_penetration_frames", "floor pen. frames", "ratio", "↓"),
+]
+TASK_METRICS = [
     ("goal_dist_body_m", "goal dist (hips)", "m", "↓"),
-    ("success_0.2", "success@0.2", "ratio", "↑"),
-    ("success_0.5", "success@0.5", "ratio", "↑"),
+    ("goal_dist_m", "goal dist (pelvis)", "m", "↓"),
+    ("success_0.2", "success@0.2 (hips)", "ratio", "↑"),
+    ("success_0.5", "success@0.5 (hips)", "ratio", "↑"),
     ("traj_fail_rate", "traj fail", "ratio", "↓"),
     ("completed", "completed", "ratio", "↑"),
-    ("penetration_frames", "scene pen. frames", "ratio", "↓"),
-    ("penetration_max_m", "scene pen. max", "m", "↓"),
-    ("floor_penetration_frames", "floor pen. frames", "ratio", "↓"),
     ("contact_rate", "contact rate", "ratio", "↑"),
     ("object_dist_m", "hand-object dist", "m", "↓"),
     ("apd_m", "APD", "m", "↑"),
-    ("jerk", "mean jerk", "m/s³", "≈ref"),
-    ("seam_ratio", "seam jump", "ratio", "≈ref"),
     ("pskl_gen_ref", "PSKL(gen,ref)", "nats", "↓"),
     ("pskl_ref_gen", "PSKL(ref,gen)", "nats", "↓"),
 ]
+METRICS = BODY_METRICS + TASK_METRICS
+# Rows of every table: the output, the network's joints before they were put on a body, the data.
+ROWS = (("model", "model"), ("model_raw", "network joints"), ("reference", "reference"), ("mocap", "real mocap"))
 DYNAMIC_ONLY = {"object_dist_m"}
 
 
@@ -64,7 +75,12 @@ def build_report(ev, meta: dict) -> dict:
             d["seconds"] = r.wall_s
             d["samples"] = [{k: v for k, v in m.items() if not k.startswith("_")} for m in r.per_sample]
             pairs.append(d)
-        out["settings"][st] = {"model": ev.model.get(st, {}), "reference": ev.reference.get(st, {}), "pairs": pairs}
+        model = dict(ev.model.get(st, {}))
+        if meta.get("goal_pinned"):
+            model["goal_dist_m"] = None          # the sampler put the pelvis there: not the model's doing
+        out["settings"][st] = {"model": model, "model_raw": ev.model_raw.get(st, {}),
+                               "reference": ev.reference.get(st, {}), "mocap": meta.get("mocap_row") or {},
+                               "pairs": pairs}
     return _clean(out)
 
 
@@ -87,21 +103,33 @@ def markdown(report: dict) -> str:
              "Arrows: ↓ lower is better, ↑ higher is better, ≈ref closer to the reference row is better. "
              "The reference row is the dataset's own motion in the same scenes; n/a where a metric does "
              "not apply to it (docs/evaluation.md).", ""]
+    if m.get("goal_pinned"):
+        lines += ["This checkpoint pins the goal's pelvis x, z (trained before goals were predicted): "
+                  "goal dist (pelvis) is n/a, the hips are the body's own.", ""]
     for st, block in report["settings"].items():
-        rows = {"model": block["model"], "reference": block["reference"]}
-        keys = [x for x in METRICS if st == "dynamic" or x[0] not in DYNAMIC_ONLY]
         n = block["model"].get("n_pairs", 0)
         lines += [f"## {st} setting", "",
                   f"{n} pair(s), {block['model'].get('n_samples', 0)} sample(s); reference: "
-                  f"{block['reference'].get('n_sequences', 0)} sequence(s), {block['reference'].get('n_frames', 0)} frames.", ""]
+                  f"{block['reference'].get('n_sequences', 0)} sequence(s), {block['reference'].get('n_frames', 0)} frames. "
+                  "Rows: the output motions; the network's own joints before they are put on one body "
+                  "(what the clean-up did); the dataset's motion"
+                  + ("; real mocap through our importer (`mocap=`: " + ", ".join(block["mocap"].get("files", []))
+                     + ")" if block.get("mocap") else "") + ".", ""]
         if not n:
             lines += ["No pairs in this setting (see notes).", ""]
             continue
-        lines.append("| | " + " | ".join(f"{lab} {a}" + (f" [{u}]" if u != "ratio" else "") for _, lab, u, a in keys) + " |")
-        lines.append("|---|" + "---:|" * len(keys))
-        for name, row in rows.items():
-            lines.append(f"| {name} | " + " | ".join(_fmt(row.get(k), u) for k, _, u, _ in keys) + " |")
-        lines += ["", f"![{st} metrics](plots/{st}_metrics.png)", ""]
+        for title, group in (("Body", BODY_METRICS), ("Task", TASK_METRICS)):
+            keys = [x for x in group if st == "dynamic" or x[0] not in DYNAMIC_ONLY]
+            lines.append(f"| {title} | " + " | ".join(f"{lab} {a}" + (f" [{u}]" if u != "ratio" else "")
+                                                      for _, lab, u, a in keys) + " |")
+            lines.append("|---|" + "---:|" * len(keys))
+            for key, name in ROWS:
+                row = block.get(key) or {}
+                if key == "mocap" and (not row or title != "Body"):
+                    continue
+                lines.append(f"| {name} | " + " | ".join(_fmt(row.get(k), u) for k, _, u, _ in keys) + " |")
+            lines.append("")
+        lines += [f"![{st} metrics](plots/{st}_metrics.png)", ""]
     if report["notes"]:
         lines += ["## Notes", ""] + [f"- {x}" for x in report["notes"]] + [""]
     lines += ["Trajectory figures: `plots/<setting>_scene<id>.png` (map, A* path, start ●, goal ★ / "
@@ -117,8 +145,8 @@ def log_tensorboard(run_dir, report: dict, images: dict[str, Path], step: int) -
     w = SummaryWriter(log_dir=str(run_dir))
     try:
         for st, block in report["settings"].items():
-            for row in ("model", "reference"):
-                for k, v in block[row].items():
+            for row, _ in ROWS:
+                for k, v in (block.get(row) or {}).items():
                     if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
                         w.add_scalar(f"eval/{st}/{row}/{k}", v, step)
         for tag, path in images.items():
@@ -203,19 +231,28 @@ def run(cfg, default_out: Path) -> dict:
 
     pc = ProtocolConfig(k=k, pairs=npairs, interaction_pairs=int(cfg.interaction_pairs),
                         static_actions=tuple(OmegaConf.to_container(cfg.static_actions)),
-                        dynamic_action=str(cfg.dynamic_action), action_seconds=float(cfg.action_seconds),
+                        dynamic_action=str(cfg.dynamic_action), action_seconds=None if cfg.get("action_seconds") is None else float(cfg.action_seconds),
                         min_distance=float(cfg.min_distance), body_radius=float(cfg.body_radius),
                         subgoal_spacing=float(cfg.subgoal_spacing), max_episodes=int(cfg.max_episodes),
                         seed=int(cfg.seed), pskl_frames=int(cfg.pskl_frames))
     progress = bool(cfg.get("progress", True))
-    ev = evaluate(loaded, ds, scenes, pc, settings, sampler, progress=progress, log=lambda m: print(m, flush=True))
+    from motiongen.body.model import load_body_model
+
+    ev = evaluate(loaded, ds, scenes, pc, settings, sampler, progress=progress, log=lambda m: print(m, flush=True),
+                  body_model=load_body_model(cfg.get("body_model")))
 
     meta = {"ckpt": str(ckpt), "step": loaded.step, "dataset": str(ds.root), "scenes": scenes, "k": k,
             "pairs": npairs, "sampler": sampler.sampler, "steps": sampler.steps, "eta": sampler.eta,
             "guidance_scale": sampler.guidance_scale, "seed": int(cfg.seed), "settings": settings,
             "protocol": {k_: (list(v) if isinstance(v, tuple) else v) for k_, v in pc.__dict__.items()},
-            "device": device, "torch_threads": torch.get_num_threads()}
+            "device": device, "torch_threads": torch.get_num_threads(), "goal_pinned": not loaded.predict_goal}
+    if cfg.get("mocap"):
+        from motiongen.eval.mocap import mocap_body_metrics
+
+        m = cfg.mocap
+        meta["mocap_row"] = mocap_body_metrics([m] if isinstance(m, str) else list(OmegaConf.to_container(m)), ds.fps)
     report = build_report(ev, meta)
+    report["meta"].pop("mocap_row", None)
     md = markdown(report)
 
     out = Path(cfg.out) if cfg.get("out") else Path(default_out)
@@ -232,7 +269,7 @@ def run(cfg, default_out: Path) -> dict:
                 if not block["pairs"]:
                     continue
                 name = f"plots/{st}_metrics.png"
-                plot_metric_bars(stage.tmp(name), {"model": block["model"], "reference": block["reference"]},
+                plot_metric_bars(stage.tmp(name), {label: block.get(key) or {} for key, label in ROWS},
                                  [x for x in spec if st == "dynamic" or x[0] not in DYNAMIC_ONLY],
                                  title=f"{st} setting: model vs reference")
                 images[f"{st}/metrics"] = out / name

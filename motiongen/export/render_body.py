@@ -20,7 +20,6 @@ that slides visibly leaves its disc.
 
 from __future__ import annotations
 
-import inspect
 
 import numpy as np
 
@@ -64,17 +63,14 @@ class BodyMeshes:
     for, so memory stays bounded whatever the motion's length."""
 
     def __init__(self, body_model, bodies, frames=None, cell: float = 0.03, chunk: int = 64):
-        # BodyModel keeps the template and skinning weights only as private numpy arrays.
-        data = body_model._data
-        labels = np.asarray(data["weights"])[:, :NUM_BODY_JOINTS].argmax(1)             # (V,) body joint
-        self.ids, self.faces = cluster_decimate(np.asarray(data["v_template"], np.float64),
-                                                np.asarray(body_model.faces), labels, cell)
+        labels = body_model.skinning_weights[:, :NUM_BODY_JOINTS].argmax(1)            # (V,) body joint
+        self.ids, self.faces = cluster_decimate(body_model.template_vertices, np.asarray(body_model.faces),
+                                                labels, cell)
         self.part = labels[self.ids]                                                 # (K,) dominant joint
         self.face_part = self.part[self.faces[:, 0]]                                 # (F,)
         self.bm, self.bodies, self.chunk = body_model, list(bodies), chunk
         T = min(len(b.transl) for b in self.bodies)
         self.frames = np.arange(T) if frames is None else np.asarray(frames, np.int64)
-        self._subset = "vertex_ids" in inspect.signature(body_model.vertices).parameters
         self._cache: dict[int, tuple[int, np.ndarray]] = {}
 
     def __len__(self) -> int:
@@ -98,10 +94,7 @@ class BodyMeshes:
                         for k in ("global_orient", "body_pose", "transl"))
         betas = torch.as_tensor(np.asarray(bd.betas), dtype=dt, device=dev)
         with torch.no_grad():
-            if self._subset:
-                v = self.bm.vertices(go, pose, tr, betas, vertex_ids=self.ids)           # (n, K, 3)
-            else:
-                v = self.bm.vertices(go, pose, tr, betas)[:, torch.as_tensor(self.ids, device=dev)]
+            v = self.bm.vertices(go, pose, tr, betas, vertex_ids=self.ids)               # (n, K, 3)
         return v.cpu().numpy().astype(np.float64)
 
 

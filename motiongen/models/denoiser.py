@@ -67,13 +67,13 @@ class TimestepEmbedder(nn.Module):
 
 class Denoiser(nn.Module):
     def __init__(self, cfg: ModelConfig, num_joints: int, num_actions: int, window: int,
-                 scene_res: tuple[int, int, int] = (32, 32, 32)):
+                 scene_res: tuple[int, int, int] = (32, 32, 32), channels: int | None = None):
         super().__init__()
         W = cfg.width
         self.cfg = cfg
         self.num_joints, self.num_actions, self.window = num_joints, num_actions, window
         self.scene_res = tuple(scene_res)
-        D = num_joints * 3
+        D = num_joints * 3 if channels is None else int(channels)   # pose (3J) + stance channels
         self.channels = D
         self.input_scale = math.sqrt(W) if cfg.scale_input else 1.0
         # mask_channels: [free entries, pinned entries, mask] each through their own columns, so a
@@ -128,21 +128,30 @@ class Denoiser(nn.Module):
         return EncodedCondition(token0, per_frame, broadcast=B is None)
 
     def _with_null(self, value: Tensor | None, drop: Tensor | None, n: int, encode, null: Tensor) -> Tensor:
-        if value is None or (drop is not None and bool(drop.all())):
-            return null.expand(n, -1)  # (n, W); skips the encoder for fully dropped batches
+        if value is None:
+            return null.expand(n, -1)
+        if not self.training and drop is not None and bool(drop.all()):
+            return null.expand(n, -1)  # (n, W); inference skips the encoder for fully dropped batches
         emb = encode(value)  # (n, W)
         if drop is None:
-            return emb
+            if not self.training:
+                return emb
+            drop = torch.zeros(n, dtype=torch.bool, device=emb.device)
+        # In training the encoder and the null both take part in every step, whatever was
+        # dropped (DistributedDataParallel needs a gradient for every parameter on every rank).
         return torch.where(drop[:, None], null.expand_as(emb), emb)
 
     def _encode_actions(self, actions: Tensor | None, drop: Tensor | None, n: int):
         enc = self.action_encoder
-        if actions is None or (drop is not None and bool(drop.all())):
+        skip = actions is None or (not self.training and drop is not None and bool(drop.all()))
+        if skip:
             frames = None
             if enc.per_frame:
                 frames = self.action_null_frames.expand(n, self.window, -1)  # (n, L, W)
             return self.action_null.expand(n, -1), frames
         pooled, frames = enc(actions)  # (n, W), (n, L, W) | None
+        if drop is None and self.training:
+            drop = torch.zeros(n, dtype=torch.bool, device=pooled.device)
         if drop is not None:
             pooled = torch.where(drop[:, None], self.action_null.expand_as(pooled), pooled)
             if frames is not None:
@@ -155,7 +164,7 @@ class Denoiser(nn.Module):
         """x_t (B, L, D), t (B,) long, cond raw or pre-encoded, known_mask (B, L, D) bool -> (B, L, D)."""
         B, L, D = x_t.shape
         if D != self.channels:
-            raise ValueError(f"denoiser expects {self.channels} channels (J*3), got {D}")
+            raise ValueError(f"denoiser expects {self.channels} channels, got {D}")
         if L > self.window:
             raise ValueError(f"window {L} longer than configured {self.window}")
         enc = cond if isinstance(cond, EncodedCondition) else self.encode_condition(cond)
@@ -174,8 +183,8 @@ class Denoiser(nn.Module):
 
 
 def build_model(cfg: ModelConfig, num_joints: int, num_actions: int, window: int,
-                scene_res: tuple[int, int, int] = (32, 32, 32)) -> Denoiser:
-    return Denoiser(cfg, num_joints, num_actions, window, scene_res)
+                scene_res: tuple[int, int, int] = (32, 32, 32), channels: int | None = None) -> Denoiser:
+    return Denoiser(cfg, num_joints, num_actions, window, scene_res, channels)
 
 
 def count_parameters(model: nn.Module) -> int:

@@ -7,15 +7,19 @@ for all S samples at once:
    (k = the transition length the checkpoint was trained with) become frames 0..k-1 of the
    new window, expressed in the frame of frame 0 — exactly how training windows are
    canonicalised, so the pinned frames look like training data.
-2. Pin those k frames (all channels) and the target's pelvis x, z at the last frame, in
-   *normalised* coordinates (stats.normalize on the full vector, then the pelvis channels).
+2. Pin those k frames (every channel: pose and stance) and give the target's pelvis x, z at the
+   last frame, in *normalised* coordinates. Transitions are written into the result; the goal
+   only conditions the model, which predicts the pelvis there like everything else
+   (`mask.predict_goal`; older checkpoints pin it), so arrival distances measure the model.
 3. Condition on the local occupancy around the target (scene grid plus placed objects),
    yaw-aligned with the window frame, and on per-frame action labels.
-4. Sample, denormalise, map back to world, keep frames k..L-1 (the first k are the pinned
-   copies of frames we already have), continue from the new last k frames.
+4. Sample, denormalise, decode (`motiongen.data.representation`), map back to world, and
+   project onto the motion's one body (`motiongen.body.solve`; its shape is fitted to the first
+   window): bone lengths are the body's whatever the network predicted, and the next episode
+   continues from a rigid body. Keep frames k..L-1, continue from the new last k frames.
 
 Improvements over the reference loop (DESIGN.md §3):
-* Look-ahead targets: each episode pins the farthest subgoal that is still within the
+* Look-ahead targets: each episode targets the farthest subgoal that is still within the
   model's reach (taken from the training statistics) and in line of sight on the walkable
   map, instead of one 0.6 m subgoal per 1.6 s window, which forces a slow shuffle. Subgoals
   farther than the reach are clamped (the episode walks towards them and the next continues).
@@ -26,8 +30,10 @@ Improvements over the reference loop (DESIGN.md §3):
   for its duration.
 * Stops at the final goal within tolerance, or at `max_episodes` with a warning saying how
   far each sample got.
-* The output is resampled to 30 fps with a cubic spline over the whole sequence, so episode
-  seams (already continuous because the transition frames are pinned copies) stay smooth.
+* Output: the projected frames are resampled to 30 fps (cubic spline) and solved once more on
+  the body over the whole motion, with every foot joint the model predicts planted held in
+  place (foot locking, `loop.foot_lock`). The network's own joints stay available
+  (`Motion.joints_raw`) so that what the clean-up did can be measured.
 """
 
 from __future__ import annotations
@@ -35,87 +41,19 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 import torch
-from scipy.interpolate import CubicSpline
 
-from motiongen.diffusion.masks import known_mask
+from motiongen.diffusion.masks import known_mask, replace_mask
 from motiongen.errors import ConfigError
 from motiongen.geometry import canonical_frame, invert_rigid, local_to_world, transform_points
 from motiongen.sampling.goals import Goal, Route, WalkableMap, check_actions, plan_route
+from motiongen.sampling.motion import Episode, LoopConfig, Motion, SamplerSettings
+from motiongen.sampling.interactions import hand_targets, merge_targets, seat_height, seat_shift
+from motiongen.sampling.scene_query import SceneQuery
 from motiongen.skeleton import LEFT_HIP, PELVIS, RIGHT_HIP
-
-
-@dataclass
-class SamplerSettings:
-    sampler: str = "ddim"          # ddpm | ddim
-    steps: int = 25                # denoising steps (ddpm: respaced when < the training steps)
-    eta: float = 0.0               # DDIM stochasticity
-    guidance_scale: float = 1.0    # classifier-free guidance; 1 = conditional pass only
-
-
-@dataclass
-class LoopConfig:
-    warmup: int = 2                # episodes standing at the start before walking
-    keep_warmup: bool = False      # include the warm-up frames in the output
-    transition: int | None = None  # pinned frames k; None = the checkpoint's mask.max_transition
-    reach: float | None = None     # max target distance per episode (m); None = from the stats
-    reach_fraction: float = 0.7    # reach = this x the farthest pelvis offset seen in training
-    lookahead: bool = True         # target the farthest visible subgoal within reach
-    tolerance: float = 0.25        # pelvis distance (m) that counts as arriving
-    max_episodes: int = 200
-    out_fps: float = 30.0
-    source_fps: float = 30.0       # rate of the data the model was trained on (before stride)
-
-
-@dataclass
-class Episode:
-    kind: str                      # warmup | walk | act | idle (majority over samples)
-    start: int                     # index of its first *new* frame in the model-rate output
-    transition: int                # frames pinned at the start of the window
-    target: np.ndarray             # (S, 2) world pelvis target (after clamping)
-    window: np.ndarray             # (S, L, J, 3) world joints of the whole sampled window
-    to_world: np.ndarray           # (S, 4, 4) the window's local -> world frame
-
-
-@dataclass
-class Motion:
-    """The result of `generate`: world joints at `fps` and everything needed to explain them."""
-
-    joints: np.ndarray             # (S, T, J, 3) float32 world, y-up, metres, at fps
-    fps: float
-    joint_names: list[str]
-    model_joints: np.ndarray       # (S, Tm, J, 3) float32 at the model rate
-    model_fps: float
-    actions: np.ndarray            # (S, T) int16 action index per output frame, -1 = none
-    action_names: list[str]
-    episode_starts: np.ndarray     # (E,) int: first output frame of each episode's new frames
-    episode_kinds: list[str]
-    route: Route
-    arrival_frame: np.ndarray      # (S, G) int output frame of arrival at each goal, -1 = never
-    arrival_error: np.ndarray      # (S, G) pelvis (x, z) distance to the goal there (m), nan = never
-    arrival_error_body: np.ndarray  # (S, G) same for the hips' midpoint (not pinned: the body's own)
-    finish_frame: np.ndarray       # (S,) output frame where the sample reached its final goal, -1 = never
-    completed: bool                # every sample reached every goal
-    wall_time: float               # seconds spent generating
-    episodes: list[Episode] = field(default_factory=list, repr=False)
-
-    @property
-    def num_samples(self) -> int:
-        return self.joints.shape[0]
-
-    @property
-    def duration(self) -> float:
-        """Seconds of motion per sample."""
-        return (self.joints.shape[1] - 1) / self.fps
-
-    @property
-    def real_time_factor(self) -> float:
-        """Seconds of motion produced (all samples) per second of compute."""
-        return self.num_samples * self.duration / max(self.wall_time, 1e-9)
 
 
 # ---------------------------------------------------------------------------------------
@@ -130,61 +68,6 @@ def model_reach(stats, cfg: LoopConfig) -> float:
     return max(0.05, cfg.reach_fraction * forward)
 
 
-def _scene_spec(window):
-    from motiongen.data.scene import LocalGridSpec
-
-    lo, hi = window.grid_lo, window.grid_hi
-    return LocalGridSpec(tuple(int(r) for r in window.grid_res), (lo[0], hi[0]), (lo[1], hi[1]), (lo[2], hi[2]))
-
-
-class _SceneQuery:
-    """Local occupancy at episode targets: (S, Hy, Hx, Hz) float32, or None for a model
-    without scene conditioning. No scene = an empty floor (all free)."""
-
-    def __init__(self, loaded, grid, objects, device):
-        from motiongen.data.scene import DynamicObjects, GridBank, TorchOccupancy
-
-        self.enabled = loaded.window.scene and getattr(loaded.model, "scene_encoder", None) is not None
-        self.spec = _scene_spec(loaded.window)
-        self.outside = bool(loaded.window.outside_occupied)
-        self.device = device
-        self.bank = TorchOccupancy(grid, device) if (grid is not None and self.enabled) else None
-        self.objects = None
-        if objects and self.enabled and loaded.window.objects:
-            bank = GridBank([g for g, _ in objects], device)
-            poses = torch.as_tensor(np.stack([np.asarray(p, np.float64) for _, p in objects]), dtype=torch.float32)
-            self._obj = (bank, poses)                                                        # poses (K, 4, 4)
-            self.objects = DynamicObjects
-        self._ids = None
-
-    def __call__(self, at_goal: np.ndarray) -> torch.Tensor | None:
-        """at_goal (S, 4, 4) local -> world frames centred on the targets."""
-        if not self.enabled:
-            return None
-        S = at_goal.shape[0]
-        if self.bank is None and self.objects is None:
-            return torch.zeros((S, *self.spec.out_shape), dtype=torch.float32, device=self.device)
-        from motiongen.data.scene import local_occupancy
-
-        T = torch.as_tensor(at_goal, dtype=torch.float32, device=self.device)
-        objs = None
-        if self.objects is not None:
-            bank, poses = self._obj
-            K = poses.shape[0]
-            ids = torch.arange(K, device=self.device)[None].expand(S, K)                   # (S, K)
-            objs = self.objects(bank, ids, poses.to(self.device)[None].expand(S, K, 4, 4))
-        if self.bank is None:
-            # Objects on an empty floor: an all-free 1-voxel grid far away plays the scene.
-            from motiongen.data.occupancy import OccupancyGrid
-            from motiongen.data.scene import TorchOccupancy
-
-            self.bank = TorchOccupancy(OccupancyGrid.from_dense(np.zeros((1, 1, 1), bool), [1e6, 1e6, 1e6], 1.0),
-                                       self.device)
-            self.outside = False
-        occ = local_occupancy(self.bank, T, self.spec, objects=objs, outside=self.outside)  # (S, Hy, Hx, Hz)
-        return occ.float()
-
-
 def _label(names: Sequence[str], name: str | None) -> int:
     return names.index(name) if name is not None and name in names else -1
 
@@ -194,7 +77,7 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
              body_radius: float = 0.25, start_yaw: float | None = None,
              objects: Sequence[tuple] = (), sampler: SamplerSettings = SamplerSettings(),
              num_samples: int = 1, generator: torch.Generator | None = None,
-             loop: LoopConfig = LoopConfig(), log=None) -> Motion:
+             loop: LoopConfig = LoopConfig(), log=None, body_model=None) -> Motion:
     """Generate S = num_samples motions from `start` through `goals` in `scene`.
 
     loaded: a `LoadedModel` (training.builders.load_model). scene: an OccupancyGrid or None
@@ -203,6 +86,8 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
     `path` / `subgoal_spacing` on `walkable`, built from `scene` with `body_radius` if None).
     objects: [(object OccupancyGrid, pose (4, 4) object -> world)] placed in the scene.
     generator: torch.Generator for the diffusion noise (reproducible runs).
+    body_model: the `BodyModel` of the motion's body (default `load_body_model()`: the user's
+    SMPL-X file from $MOTIONGEN_SMPLX_MODEL, else the procedural one); used when loop.project.
     log: optional callable(str) for progress lines.
     Raises ConfigError for bad goals/actions/paths; returns a `Motion`.
     """
@@ -222,8 +107,9 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
 
     model, diffusion, stats, win = loaded.model, loaded.diffusion, loaded.stats, loaded.window
     device = next(model.parameters()).device
-    J = loaded.joint_set.num_joints
-    L, D, S, G = win.length, J * 3, num_samples, len(goals)
+    layout = loaded.layout
+    J, C = loaded.joint_set.num_joints, layout.num_contacts
+    L, D, S, G = win.length, layout.channels, num_samples, len(goals)
     k = loop.transition if loop.transition is not None else int(loaded.mask.max_transition)
     if not 1 <= k < L:
         raise ConfigError(f"transition frames must be in 1..{L - 1} (checkpoint trained with up to "
@@ -231,17 +117,28 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
     if k > loaded.mask.max_transition:
         warnings.warn(f"pinning {k} transition frames; the model was trained with at most {loaded.mask.max_transition}")
     new = L - k                                                                              # new frames per episode
-    model_fps = loop.source_fps / win.stride
+    source_fps = float(loop.source_fps if loop.source_fps is not None else getattr(loaded, "fps", 30.0))
+    model_fps = source_fps / win.stride
+    predict_goal = bool(getattr(loaded, "predict_goal", False)) and not loop.pin_goal
+    body = None                            # MotionBody, fitted to the first window
+    if loop.project and body_model is None:
+        from motiongen.body.model import load_body_model
+
+        body_model = load_body_model()
     reach = model_reach(stats, loop)
     A = len(names)
     walk_label, idle_label = _label(names, "walk"), _label(names, "stand")
     if idle_label < 0:
         idle_label = walk_label
-    query = _SceneQuery(loaded, scene, objects, device)
+    query = SceneQuery(loaded, scene, objects, device)
     sub, sub_leg = route.subgoals, route.subgoal_leg
     leg_last = np.array([np.flatnonzero(sub_leg == g).max() for g in range(G)])             # (G,)
     goal_xz = np.stack([g.xz for g in goals])                                                # (G, 2)
     act_eps = [int(math.ceil(g.duration * model_fps / new)) if g.interacts and g.duration > 0 else 0 for g in goals]
+    # Pelvis height while acting on a seat or bed (NaN: the model decides).
+    seat_y = np.array([seat_height(scene, g.xz) + loop.seat_offset
+                       if scene is not None and g.action in loop.seat_actions and loaded.mask.p_goal_y > 0
+                       else np.nan for g in goals])
 
     def log_(msg):
         if log is not None:
@@ -258,10 +155,15 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
     finish_m = np.full(S, -1, np.int64)
 
     frames: list[np.ndarray] = []          # model-rate world frames, each (S, n, J, 3) float64
+    raws: list[np.ndarray] = []            # the same frames as the network predicted them
+    stances: list[np.ndarray] = []         # (S, n, C) bool predicted planted flags
+    rots: list[torch.Tensor] = []          # (S, n, 22, 3, 3) local rotations on the body
     labels: list[np.ndarray] = []          # (S, n) int action index per frame
     n_frames = 0
     episodes: list[Episode] = []
     tail = None                            # (S, k, J, 3) world: the last k frames so far
+    tail_stance = np.zeros((S, k, C), bool)
+    tail_rot = None                        # (S, k, 22, 3, 3)
     tail_labels = np.full((S, k), walk_label, np.int64)
 
     if start_yaw is None:
@@ -276,9 +178,11 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
         n = stats.normalize(v)
         return n[:, [3 * PELVIS + 0, 3 * PELVIS + 2]]
 
-    def run_episode(kind: str, target: np.ndarray, label: np.ndarray, first: bool) -> None:
-        """Sample one window for all samples towards world targets (S, 2) with per-sample labels (S,)."""
-        nonlocal tail, tail_labels, n_frames
+    def run_episode(kind: str, target: np.ndarray, label: np.ndarray, first: bool,
+                    height: np.ndarray | None = None) -> None:
+        """Sample one window for all samples towards world targets (S, 2) with per-sample labels
+        (S,) and, where finite, pelvis heights (S,) at the target."""
+        nonlocal tail, tail_stance, tail_rot, tail_labels, n_frames, body
         if first:
             # No history: the window frame is the start pose; nothing pinned but the target.
             Tw = np.repeat(local_to_world(np.float64(start_yaw), np.asarray(route.start, np.float64))[None], S, 0)
@@ -294,9 +198,15 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
         known = np.zeros((S, L, D), np.float32)
         if kk:
             local_tail = transform_points(inv[:, None], tail)                                # (S, k, J, 3)
-            known[:, :kk] = stats.normalize(local_tail.reshape(S, kk, D).astype(np.float32))
+            known[:, :kk] = stats.normalize(layout.encode(local_tail, tail_stance).astype(np.float32))
         known[:, -1, [3 * PELVIS + 0, 3 * PELVIS + 2]] = pin_goal_channels(local_t)
-        mask = known_mask(S, L, J, transition=kk, goal_xz=True, goal_joint=PELVIS)         # (S, L, D)
+        give_y = np.isfinite(height) if height is not None else np.zeros(S, bool)
+        if give_y.any():
+            v = np.zeros((S, D), np.float32)
+            v[:, 3 * PELVIS + 1] = np.where(give_y, height, 0.0)                            # floor at y = 0
+            known[:, -1, 3 * PELVIS + 1] = stats.normalize(v)[:, 3 * PELVIS + 1]
+        mask = known_mask(S, L, J, transition=kk, goal_xz=True, goal_y=torch.from_numpy(give_y),
+                          goal_joint=PELVIS, channels=D)                                     # (S, L, D)
 
         # Scene around the target, in the window's orientation, floor at y = 0.
         at_goal = Tw.copy()
@@ -311,21 +221,38 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
         from motiongen.models import Condition
 
         cond = Condition(scene=query(at_goal), actions=torch.from_numpy(act).to(device) if A else None)
+        mask = mask.to(device)
         x0 = diffusion.sample(model, (S, L, D), cond, known=torch.from_numpy(known).to(device),
-                              known_mask=mask.to(device), sampler=sampler.sampler, steps=sampler.steps,
-                              eta=sampler.eta, guidance_scale=sampler.guidance_scale, generator=generator)
-        local = stats.denormalize(x0.float().cpu().numpy()).astype(np.float64).reshape(S, L, J, 3)
-        world = transform_points(Tw[:, None], local)                                         # (S, L, J, 3)
-        episodes.append(Episode(kind, n_frames, kk, target.copy(), world.astype(np.float32), Tw))
+                              known_mask=mask, replace_mask=replace_mask(mask, predict_goal),
+                              sampler=sampler.sampler, steps=sampler.steps, eta=sampler.eta,
+                              guidance_scale=sampler.guidance_scale, generator=generator)
+        local, stance = layout.decode(stats.denormalize(x0.float().cpu().numpy()).astype(np.float64))
+        raw = transform_points(Tw[:, None], local)                                           # (S, L, J, 3) world
+        world, rot = raw, None
+        if loop.project:
+            if body is None:
+                from motiongen.body.solve import MotionBody
+
+                body = MotionBody.estimate(body_model, loaded.joint_set, raw)
+            world, rot, _ = body.project(raw, None if tail_rot is None else tail_rot[:, -1])
         if kk:
             # The pinned frames come back as the previous frames up to float32 rounding of the
             # normalised values; keep the exact originals so seams carry no rounding jitter.
-            world[:, :kk] = tail
-        keep = world[:, kk:]
-        frames.append(keep)
+            world = world.copy()
+            world[:, :kk], stance[:, :kk] = tail, tail_stance
+            if rot is not None:
+                rot[:, :kk] = tail_rot
+        episodes.append(Episode(kind, n_frames, kk, target.copy(), world.astype(np.float32), Tw,
+                                raw.astype(np.float32)))
+        frames.append(world[:, kk:])
+        raws.append(raw[:, kk:])
+        stances.append(stance[:, kk:])
+        if rot is not None:
+            rots.append(rot[:, kk:])
         labels.append(lab[:, kk:])
-        n_frames += keep.shape[1]
-        tail, tail_labels = world[:, L - k:], lab[:, L - k:]
+        n_frames += L - kk
+        tail, tail_stance, tail_labels = world[:, L - k:], stance[:, L - k:], lab[:, L - k:]
+        tail_rot = None if rot is None else rot[:, L - k:]
 
     def pelvis_xz(x):                                                                        # (..., J, 3) -> (..., 2)
         return x[..., PELVIS, :][..., [0, 2]]
@@ -337,7 +264,8 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
         run_episode("warmup", start_t, warm_label, first=(w == 0))
     if not loop.keep_warmup:
         # Output starts with the last k warm-up frames: the history the first walk episode pins.
-        frames, labels = [tail.copy()], [tail_labels.copy()]
+        frames, raws, labels = [tail.copy()], [raws[-1][:, -k:].copy()], [tail_labels.copy()]
+        stances, rots = [tail_stance.copy()], ([tail_rot.clone()] if tail_rot is not None else [])
         n_frames = k
         episodes[-1].start = 0
     first_kept = len(episodes) - 1 if not loop.keep_warmup else 0
@@ -350,6 +278,7 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
         label = np.empty(S, np.int64)
         kinds = []
         chosen = np.full(S, -1, np.int64)
+        height = np.full(S, np.nan)
         for s in range(S):
             g = min(leg[s], G - 1)
             if done[s]:
@@ -359,6 +288,7 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
             elif acting[s] > 0:
                 target[s] = goal_xz[g]
                 label[s] = _label(names, goals[g].action)
+                height[s] = seat_y[g]
                 kinds.append("act")
             else:
                 j = ptr[s]
@@ -372,7 +302,7 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
                 kinds.append("walk")
         kind = max(set(kinds), key=kinds.count)
         before = n_frames
-        run_episode(kind, target, label, first=False)
+        run_episode(kind, target, label, first=False, height=height)
         n_ep += 1
         pel = pelvis_xz(frames[-1])                                                          # (S, new, 2)
         hips = 0.5 * (frames[-1][:, :, LEFT_HIP] + frames[-1][:, :, RIGHT_HIP])[..., [0, 2]]  # (S, new, 2)
@@ -416,19 +346,46 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
             parts.append(f"sample {s} reached {int((arrival_m[s] >= 0).sum())}/{G} goals, {dist:.2f} m from goal {g + 1}")
         warnings.warn(f"stopped after max_episodes={loop.max_episodes} episodes: " + "; ".join(parts), stacklevel=2)
 
-    # -- assemble and resample to the output rate --------------------------------------
+    # -- assemble, resample to the output rate, solve on the body -------------------------
+    from motiongen.sampling.assemble import output_times, planted_at_output, resample, solve_bodies
+
     model_joints = np.concatenate(frames, 1)                                                 # (S, Tm, J, 3)
     model_labels = np.concatenate(labels, 1)                                                 # (S, Tm)
     Tm = model_joints.shape[1]
     ratio = loop.out_fps / model_fps
-    t_model = np.arange(Tm) / model_fps
-    T = int(math.floor((Tm - 1) * ratio + 1e-6)) + 1
-    t_out = np.arange(T) / loop.out_fps
-    if Tm >= 2 and abs(ratio - 1) > 1e-9:
-        out = CubicSpline(t_model, model_joints, axis=1)(t_out)                              # (S, T, J, 3)
-    else:
-        out = model_joints.copy()
-    near = np.minimum(np.round(t_out * model_fps).astype(np.int64), Tm - 1)                 # (T,) nearest model frame
+    _, near = output_times(Tm, model_fps, loop.out_fps)                                      # (T,) nearest model frame
+    out = resample(model_joints, model_fps, loop.out_fps)                                     # (S, T, J, 3)
+    raw_out = resample(np.concatenate(raws, 1), model_fps, loop.out_fps)
+    planted = planted_at_output(np.concatenate(stances, 1), out, layout.contact_joints, model_fps,
+                                loop.out_fps) if C else None
+    if loop.smooth > 0:
+        from scipy.ndimage import gaussian_filter1d
+
+        # Network jitter sits near the model rate's Nyquist frequency (3-5 Hz at 10 fps), where
+        # real motion has little power (docs/sampling.md); steps (1-2 Hz) pass.
+        # The feet keep their own timing: smoothing would flatten each swing into a shuffle
+        # (lower, longer, near the floor); the final solve's lock and acceleration terms
+        # handle their jitter.
+        keep = list(layout.contact_joints)
+        feet = out[:, :, keep].copy()
+        out = gaussian_filter1d(out, loop.smooth, axis=1, mode="nearest")
+        out[:, :, keep] = feet
+    seat_goals: dict[int, list[int]] = {}
+    for g, goal in enumerate(goals):
+        if np.isfinite(seat_y[g]):
+            seat_goals.setdefault(_label(names, goal.action), []).append(g)
+    seats = [None] * S
+    if seat_goals and loop.project:
+        targets = [[goal_xz[g, 0], seat_y[g], goal_xz[g, 1]] for g in range(G)]
+        shifted = [seat_shift(out[s], model_labels[s, near], seat_goals, targets) for s in range(S)]
+        out, seats = np.stack([x for x, _ in shifted]), [r for _, r in shifted]
+    bodies = None
+    if body is not None:
+        hands = hand_targets(out, model_labels[:, near], names, loop.hand_actions, objects, scene) or [None] * S
+        bodies = solve_bodies(body, out, torch.cat(rots, 1), planted if loop.foot_lock else None,
+                              layout.contact_joints, model_fps, loop.out_fps,
+                              [merge_targets(h, p) for h, p in zip(hands, seats)])
+        out = np.stack([b.joints for b in bodies])
     to_out = lambda m: np.where(m >= 0, np.round(m * ratio).astype(np.int64), -1)            # noqa: E731
     kept = episodes[first_kept:]
     starts = np.array([to_out(np.int64(e.start)) for e in kept], np.int64)
@@ -439,4 +396,6 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
         episode_starts=starts, episode_kinds=[e.kind for e in kept], route=route,
         arrival_frame=to_out(arrival_m), arrival_error=arrival_err, arrival_error_body=arrival_body,
         finish_frame=to_out(finish_m), completed=completed, wall_time=time.perf_counter() - t_start,
+        joints_raw=raw_out.astype(np.float32), planted=planted,
+        contact_joints=[loaded.joint_set.names[j] for j in layout.contact_joints], bodies=bodies,
         episodes=episodes)

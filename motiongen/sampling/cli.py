@@ -205,9 +205,37 @@ def motion_arrays(motion: Motion, extra: dict | None = None) -> dict:
         "completed": np.bool_(motion.completed),
         "wall_time": np.float64(motion.wall_time),
     }
+    if motion.joints_raw is not None:
+        d["joints_raw"] = motion.joints_raw.astype(np.float32)                           # (S, T, J, 3) network's own
+    if motion.planted is not None:
+        d["planted"] = motion.planted                                                     # (S, T, C) bool
+        d["contact_joints"] = np.array(motion.contact_joints)
+    if motion.bodies is not None:
+        d["betas"] = np.stack([b.betas for b in motion.bodies]).astype(np.float32)       # (S, nβ) one body each
     for k, v in (extra or {}).items():
         d[k] = np.array(v)
     return d
+
+
+def body_figures(motion: Motion) -> dict:
+    """Per sample, what the motion is as a body (docs/metrics.md): bone-length CV and largest
+    deviation, grounded-toe median slide speed, foot skating; for the output and for the
+    network's own joints. Lists of S values."""
+    from motiongen.eval import metrics as M
+    from motiongen.skeleton import joint_set_for
+
+    parents = joint_set_for(motion.joint_names).parents
+    out: dict[str, list] = {}
+    for tag, joints in (("", motion.joints), ("network_", motion.joints_raw)):
+        if joints is None:
+            continue
+        for s in range(motion.num_samples):
+            b = M.bone_consistency(joints[s], parents)
+            for k, v in (("bone_cv", b.cv_median), ("bone_max_dev", b.max_deviation),
+                         ("slide_mps", M.grounded_slide(joints[s], motion.fps)),
+                         ("foot_skating", M.foot_skating_ratio(joints[s], motion.fps))):
+                out.setdefault(tag + k, []).append(float(v))
+    return out
 
 
 def summary_lines(motion: Motion, sampler: SamplerSettings) -> list[str]:
@@ -227,6 +255,13 @@ def summary_lines(motion: Motion, sampler: SamplerSettings) -> list[str]:
                          f"at {at.mean():.1f} s")
         else:
             lines.append(f"goal {g + 1} ({goal.xz[0]:.2f}, {goal.xz[1]:.2f}){what}: not reached")
+    f = body_figures(motion)
+    if f:
+        lines.append("body: bone-length CV {} (network {}), largest bone deviation {} (network {}), "
+                     "grounded-toe slide {} m/s (network {}), foot skating {} (network {})".format(
+                         *[", ".join(f"{v:.3f}" for v in f.get(tag + k, [])) or "n/a"
+                           for k in ("bone_cv", "bone_max_dev", "slide_mps", "foot_skating")
+                           for tag in ("", "network_")]))
     lines.append(f"wall time {motion.wall_time:.1f} s, real-time factor {motion.real_time_factor:.2f} "
                  f"({S} x {motion.duration:.1f} s of motion / {motion.wall_time:.1f} s)")
     return lines
@@ -313,9 +348,12 @@ def run(cfg, default_out: Path) -> dict:
     yaw = cfg.get("start_yaw")
     print(f"sampling: {ckpt} (step {loaded.step}) in {scene.label}, {len(goals)} goal(s), "
           f"{len(route.subgoals)} subgoals, {cfg.num_samples} sample(s)", flush=True)
+    from motiongen.body.model import load_body_model
+
+    body_model = load_body_model(cfg.get("body_model"))
     motion = generate(loaded, scene.grid, route.start, route=route, walkable=fmap,
                       start_yaw=None if yaw is None else float(yaw), objects=scene.objects, sampler=sampler,
-                      num_samples=int(cfg.num_samples), generator=gen, loop=loop,
+                      num_samples=int(cfg.num_samples), generator=gen, loop=loop, body_model=body_model,
                       log=(lambda m: print(m, flush=True)) if _bool(cfg, "verbose") else None)
 
     out.mkdir(parents=True, exist_ok=True)
@@ -338,9 +376,12 @@ def run(cfg, default_out: Path) -> dict:
             from motiongen.export.video import render_video, video_suffix
 
             tv = time.perf_counter()
+            vfps = cfg.get("video_fps")
             tmp = render_video(stage.tmp("motion" + video_suffix()), motion.joints, motion.fps,
                                loaded.joint_set.parents, scene.grid, fmap, route.path, route.subgoals, goals_xz,
-                               video_fps=float(cfg.video_fps), title=f"{scene.label}")
+                               video_fps=None if vfps is None else float(vfps), title=f"{scene.label}",
+                               bodies=motion.bodies, body_model=body_model, planted=motion.planted,
+                               contact_joints=loaded.layout.contact_joints, style=str(cfg.get("video_style", "body")))
             stage.add(tmp, "motion" + tmp.suffix)
             print(f"video: {motion.joints.shape[1] / motion.fps:.1f} s rendered in {time.perf_counter() - tv:.1f} s",
                   flush=True)
@@ -352,17 +393,20 @@ def run(cfg, default_out: Path) -> dict:
                 name = "motion.bvh" if S == 1 else f"motion_{s}.bvh"
                 stage.add(export_bvh(stage.tmp(name), motion.joints[s], motion.fps), name)
         if _bool(cfg, "body"):
-            try:
-                from motiongen.body.fit import fit_joints, save_amass_npz
-            except ImportError:
-                raise ConfigError("body=true needs motiongen.body (SMPL-X fitting), which is not available") from None
+            from motiongen.body.fit import fit_joints, save_amass_npz
+
             for s in range(S):
                 name = "body.npz" if S == 1 else f"body_{s}.npz"
-                fit = fit_joints(motion.joints[s])
+                if motion.bodies is not None:
+                    # The motion is already a body: its own SMPL-X parameters, no second fit.
+                    fit = motion.bodies[s].as_fit(motion.joints[s])
+                else:
+                    fit = fit_joints(motion.joints[s][:, :22], body_model)
+                    print(f"body fit sample {s}: MPJPE {fit.mpjpe * 1000:.1f} mm", flush=True)
                 stage.add(save_amass_npz(stage.tmp(name), fit, motion.fps), name)
-                print(f"body fit sample {s}: MPJPE {fit.mpjpe * 1000:.1f} mm", flush=True)
         lines = summary_lines(motion, sampler)
         summary = {"frames": int(motion.joints.shape[1]), "fps": motion.fps, "duration_s": motion.duration,
+                   "body": body_figures(motion),
                    "num_samples": S, "episodes": int(len(motion.episode_starts)), "completed": motion.completed,
                    "arrival_error_m": np.where(np.isfinite(motion.arrival_error), motion.arrival_error, -1).tolist(),
                    "arrival_error_body_m": np.where(np.isfinite(motion.arrival_error_body),

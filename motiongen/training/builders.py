@@ -8,10 +8,11 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from motiongen.config import WindowNode
+from motiongen.data.representation import Layout
 from motiongen.data.sources import DataConfig
 from motiongen.data.windows import WindowConfig
 from motiongen.diffusion import DiffusionConfig, GaussianDiffusion
-from motiongen.diffusion.masks import MaskConfig, sample_known_mask
+from motiongen.diffusion.masks import MaskConfig, loss_mask, predicts_goal, replace_mask, sample_known_mask
 from motiongen.errors import ConfigError
 from motiongen.models import Condition, ModelConfig, build_model
 from motiongen.models.condition import drop_conditions
@@ -44,8 +45,14 @@ def build_from_config(cfg, joint_set: JointSet, action_names: list[str]):
     mcfg = _dataclass_from(ModelConfig, cfg.model)
     dcfg = _dataclass_from(DiffusionConfig, cfg.diffusion)
     w = window_config(cfg)
+    if not w.scene and mcfg.use_scene:
+        # Windows without a scene grid: a scene encoder would never see an input (and under
+        # DDP its parameters would never get a gradient).
+        from dataclasses import replace as _replace
+        mcfg = _replace(mcfg, use_scene=False)
+    layout = Layout.for_window(w, joint_set)
     model = build_model(mcfg, num_joints=joint_set.num_joints, num_actions=len(action_names), window=w.length,
-                        scene_res=(w.grid_res[1], w.grid_res[0], w.grid_res[2]))
+                        scene_res=(w.grid_res[1], w.grid_res[0], w.grid_res[2]), channels=layout.channels)
     meta = {"joint_names": list(joint_set.names), "action_names": list(action_names),
             "model_config": OmegaConf.to_container(OmegaConf.structured(mcfg)),
             "diffusion_config": OmegaConf.to_container(OmegaConf.structured(dcfg))}
@@ -61,8 +68,13 @@ def batch_condition(batch: dict, device, tc, generator, train: bool) -> Conditio
 
 
 def known_mask_for_batch(cfg, shape, num_joints: int, device, generator) -> torch.Tensor:
-    B, L, _ = shape
-    return sample_known_mask(B, L, num_joints, mask_config(cfg), generator).to(device)
+    B, L, D = shape
+    return sample_known_mask(B, L, num_joints, mask_config(cfg), generator, channels=D).to(device)
+
+
+def loss_mask_for_batch(cfg, known_mask: torch.Tensor) -> torch.Tensor:
+    """Entries the loss covers: goals too when the model predicts them (`mask.predict_goal`)."""
+    return loss_mask(known_mask, predicts_goal(mask_config(cfg), str(cfg.diffusion.prediction)))
 
 
 def fixed_known_mask(shape, transition: int, goal: bool, device) -> torch.Tensor:
@@ -81,8 +93,23 @@ def sample_windows(model, diffusion, batch: dict, cfg, device, generator, steps:
     cond = Condition(scene=batch["scene"].to(device) if "scene" in batch else None, actions=batch["actions"].to(device))
     mask = fixed_known_mask(x0.shape, 2, True, device)
     model.eval()
+    replace = replace_mask(mask, predicts_goal(mask_config(cfg), str(cfg.diffusion.prediction)))
     return diffusion.sample(model, x0.shape, cond, known=x0, known_mask=mask, sampler="ddim",
-                            steps=min(steps, diffusion.num_timesteps), generator=generator)
+                            steps=min(steps, diffusion.num_timesteps), generator=generator, replace_mask=replace)
+
+
+def _with_legacy_defaults(cfg):
+    """Checkpoints from before the root representation and goal prediction hold absolute joints
+    and pinned goals: missing keys mean the old behaviour, not today's defaults."""
+    from omegaconf import open_dict
+
+    with open_dict(cfg):
+        if "representation" not in cfg.window:
+            cfg.window.representation = "absolute"
+            cfg.window.contact_joints = []
+        if "predict_goal" not in cfg.mask:
+            cfg.mask.predict_goal = False
+    return cfg
 
 
 class LoadedModel:
@@ -94,7 +121,7 @@ class LoadedModel:
         from motiongen.skeleton import joint_set_for
         from omegaconf import OmegaConf as OC
 
-        cfg = OC.create(state["config"])
+        cfg = _with_legacy_defaults(OC.create(state["config"]))
         self.config = cfg
         self.step = int(state["step"])
         self.joint_set = joint_set_for(state["joint_names"])
@@ -102,6 +129,9 @@ class LoadedModel:
         self.stats = NormStats.from_state_dict(state["stats"])
         self.window = window_config(cfg)
         self.mask = mask_config(cfg)
+        self.layout = Layout.for_window(self.window, self.joint_set)
+        self.predict_goal = predicts_goal(self.mask, str(cfg.diffusion.prediction))
+        self.fps = float(state.get("fps") or 30.0)         # the training data's frame rate
         model, self.diffusion, _ = build_from_config(cfg, self.joint_set, self.action_names)
         try:
             model.load_state_dict(state["ema" if use_ema else "model"])
@@ -133,10 +163,10 @@ def load_model(path, device="cpu", use_ema: bool = True) -> LoadedModel:
         raise DataError(path, None, f"unreadable or incompatible checkpoint ({type(e).__name__}: {first})") from None
 
 
-def loss_channel_weights(tc, num_joints: int, device) -> torch.Tensor | None:
-    """(J*3,) per-channel loss weights: the pelvis (joint 0) channels get train.pelvis_loss_weight."""
+def loss_channel_weights(tc, channels: int, device) -> torch.Tensor | None:
+    """(D,) per-channel loss weights: the pelvis (joint 0) channels get train.pelvis_loss_weight."""
     if tc.pelvis_loss_weight == 1.0:
         return None
-    w = torch.ones(num_joints * 3, device=device)
+    w = torch.ones(channels, device=device)
     w[:3] = tc.pelvis_loss_weight
     return w

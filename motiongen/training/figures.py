@@ -50,9 +50,8 @@ def log_sample_figure(writer, model, diffusion, dataset, cfg, device, step: int,
     batch = torch.utils.data.default_collate([dataset[int(i)] for i in idx])
     gen = torch.Generator(device=device).manual_seed(0)
     x = sample_windows(model, diffusion, batch, cfg, device, gen)                 # (n, L, D) normalised
-    stats = dataset.stats
-    J = x.shape[-1] // 3
-    to_np = lambda a: stats.denormalize(a.float().cpu()).numpy().reshape(n, -1, J, 3)  # noqa: E731
+    stats, layout = dataset.stats, dataset.layout
+    to_np = lambda a: layout.decode(stats.denormalize(a.float().cpu()).numpy())[0]  # (n, L, J, 3)  # noqa: E731
     fig = window_figure(to_np(batch["motion"]), to_np(x), batch["goal"].numpy())
     writer.add_figure("samples/windows", fig, step)
     plt.close(fig)

@@ -19,7 +19,7 @@ from motiongen.data.windows import NormStats, WindowDataset
 from motiongen.errors import ConfigError, MotiongenError
 from motiongen.training import distributed as dd
 from motiongen.training.builders import (batch_condition, build_from_config, data_config, known_mask_for_batch,
-                                         loss_channel_weights, window_config)
+                                         loss_channel_weights, loss_mask_for_batch, window_config)
 from motiongen.training.checkpoint import find_resume, load_checkpoint, save_checkpoint
 from motiongen.training.config import TrainConfig
 from motiongen.training.data_order import ResumableBatchSampler
@@ -70,6 +70,16 @@ def _set_rng_state(s: dict, gen: torch.Generator) -> None:
     gen.set_state(s["noise"])
     if "cuda" in s and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(s["cuda"])
+
+
+def _weights_checksum(model: torch.nn.Module) -> str:
+    """A digest of every parameter's bytes: equal iff the weights are bitwise equal."""
+    import hashlib
+
+    h = hashlib.sha1()
+    for p in model.parameters():
+        h.update(p.detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()
 
 
 def train(cfg: DictConfig, run_dir: Path) -> Path | None:
@@ -158,19 +168,25 @@ def train(cfg: DictConfig, run_dir: Path) -> Path | None:
 
     def checkpoint(best: bool = False) -> Path | None:
         rngs = dd.gather_objects(_rng_state(noise_gen), info)
+        # Every rank must hold the same weights (DDP averages gradients; a rank-dependent code
+        # path that skips a parameter would let them drift): compare exact checksums.
+        sums = dd.gather_objects(_weights_checksum(model), info)
+        if len(set(sums)) > 1:
+            raise TrainingDiverged(f"model weights differ between DDP ranks at step {step} (checksums {sums})")
         if not info.is_main:
             return None
         payload = {
             "format": CKPT_FORMAT, "version": 1, "step": step, "best_val": best_val,
             "model": model.state_dict(), "ema": ema.state_dict(), "optimizer": opt.state_dict(),
             "scheduler": sched.state_dict(), "rng": rngs, "data_position": step,
-            "config": OmegaConf.to_container(cfg, resolve=True), "stats": stats.state_dict(), **meta,
+            "config": OmegaConf.to_container(cfg, resolve=True), "stats": stats.state_dict(), "fps": ds.fps,
+            "rank_checksums": sums, **meta,
         }
         return save_checkpoint(payload, run_dir / "checkpoints", step, tc.keep_last, best=best)
 
     # ---- loop ----------------------------------------------------------------------------
     autocast = torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp == "bf16")
-    weights = loss_channel_weights(tc, ds.joint_set.num_joints, device)
+    weights = loss_channel_weights(tc, train_set.layout.channels, device)
     it = iter(loader)
     bar = None
     if info.is_main and tc.progress:
@@ -190,7 +206,7 @@ def train(cfg: DictConfig, run_dir: Path) -> Path | None:
         noise = torch.randn(x0.shape, device=device, generator=noise_gen)
         with autocast:
             losses = diffusion.training_losses(net, x0, t, cond, known=x0, known_mask=known_mask, noise=noise,
-                                               channel_weights=weights)
+                                               channel_weights=weights, loss_mask=loss_mask_for_batch(cfg, known_mask))
         loss = losses["loss"]
         opt.zero_grad(set_to_none=True)
         loss.backward()

@@ -5,7 +5,8 @@ from __future__ import annotations
 import torch
 from torch.utils.data import DataLoader, Subset
 
-from motiongen.training.builders import batch_condition, known_mask_for_batch, loss_channel_weights
+from motiongen.training.builders import (batch_condition, known_mask_for_batch, loss_channel_weights,
+                                         loss_mask_for_batch)
 
 
 @torch.no_grad()
@@ -20,12 +21,13 @@ def validation_loss(model, diffusion, val_set, cfg, tc, device, autocast) -> flo
     for batch in loader:
         x0 = batch["motion"].to(device)
         cond = batch_condition(batch, device, tc, gen, train=False)
-        mask = known_mask_for_batch(cfg, x0.shape, x0.shape[-1] // 3, device, gen)
+        mask = known_mask_for_batch(cfg, x0.shape, val_set.layout.num_joints, device, gen)
         t = torch.randint(0, diffusion.num_timesteps, (x0.shape[0],), device=device, generator=gen)
         noise = torch.randn(x0.shape, device=device, generator=gen)
         with autocast:
             losses = diffusion.training_losses(model, x0, t, cond, known=x0, known_mask=mask, noise=noise,
-                                               channel_weights=loss_channel_weights(tc, x0.shape[-1] // 3, device))
+                                               channel_weights=loss_channel_weights(tc, x0.shape[-1], device),
+                                               loss_mask=loss_mask_for_batch(cfg, mask))
         total += float(losses["loss"]) * x0.shape[0]
         count += x0.shape[0]
     return total / max(count, 1)

@@ -1,0 +1,89 @@
+"""From model-rate episodes to the output motion: resample to the output rate, then the final
+body solve (one body, planted feet locked; `motiongen.body.solve`)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from scipy.interpolate import CubicSpline
+
+from motiongen.body.fit import analytic_init
+from motiongen.skeleton import NUM_BODY_JOINTS
+
+
+def output_times(num_model_frames: int, model_fps: float, out_fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """(t_out (T,) seconds, nearest model frame (T,) int) of the output frames."""
+    T = int(math.floor((num_model_frames - 1) * out_fps / model_fps + 1e-6)) + 1
+    t_out = np.arange(T) / out_fps
+    near = np.minimum(np.round(t_out * model_fps).astype(np.int64), num_model_frames - 1)
+    return t_out, near
+
+
+def resample(x: np.ndarray, model_fps: float, out_fps: float) -> np.ndarray:
+    """(S, Tm, ...) at model_fps -> (S, T, ...) at out_fps, cubic spline over the whole motion
+    (episode seams are continuous already: transition frames are copies)."""
+    Tm = x.shape[1]
+    t_out, _ = output_times(Tm, model_fps, out_fps)
+    if Tm < 2 or abs(out_fps / model_fps - 1) < 1e-9:
+        return x[:, : len(t_out)].copy()
+    return CubicSpline(np.arange(Tm) / model_fps, x, axis=1)(t_out)
+
+
+def _runs(col: np.ndarray) -> list[tuple[int, int]]:
+    """[(start, end)) of the True runs of a 1-D bool array."""
+    e = np.flatnonzero(np.diff(np.concatenate([[0], col.astype(np.int8), [0]])))
+    return list(zip(e[::2].tolist(), e[1::2].tolist()))
+
+
+def planted_at_output(stance: np.ndarray, joints: np.ndarray, contact_joints, model_fps: float, out_fps: float,
+                      min_frames: int = 5, min_swing: int = 8, same_spot: float = 0.05) -> np.ndarray:
+    """Feet to lock, (S, T, C) bool at the output rate, from the predicted stance channels
+    (S, Tm, C) at the model rate (nearest model frame) and the motion's own joints (S, T, J, 3):
+
+    * spans shorter than `min_frames` go (flickers of the prediction, not steps);
+    * two spans of one joint that hold it within `same_spot` m of each other, split by a short
+      gap, are one plant (the prediction blinked);
+    * a swing between two plants shorter than `min_swing` frames (0.27 s at 30 fps; real steps
+      take twice that) is widened into the plants around it, so the foot has time to travel
+      instead of popping from one spot to the next."""
+    _, near = output_times(stance.shape[1], model_fps, out_fps)
+    out = np.asarray(stance, bool)[:, near].copy()                                      # (S, T, C)
+    feet = np.asarray(joints)[:, :, list(contact_joints)]                               # (S, T, C, 3)
+    for s in range(out.shape[0]):
+        for c in range(out.shape[2]):
+            col = out[s, :, c]
+            for a, b in _runs(col):
+                if b - a < min_frames:
+                    col[a:b] = False
+            spans = _runs(col)
+            for (a0, b0), (a1, b1) in zip(spans[:-1], spans[1:]):
+                gap = a1 - b0
+                if gap >= min_swing:
+                    continue
+                spot0, spot1 = feet[s, a0:b0, c].mean(0), feet[s, a1:b1, c].mean(0)
+                if np.linalg.norm(spot1 - spot0) < same_spot:
+                    col[b0:a1] = True                                                 # one plant
+                else:
+                    grow = min_swing - gap
+                    col[max(a0, b0 - (grow + 1) // 2):b0] = False                      # lift off earlier,
+                    col[a1:min(b1, a1 + grow // 2 + 1)] = False                       # land later
+    return out
+
+
+def solve_bodies(body, joints: np.ndarray, rot_model: torch.Tensor, planted: np.ndarray | None,
+                 contact_joints, model_fps: float, out_fps: float, reach: list | None = None) -> list:
+    """The final solve, per sample: joints (S, T, J, 3) to follow at the output rate (resampled
+    projected frames), rot_model (S, Tm, 22, 3, 3) the episodes' rotations (twist hints),
+    planted (S, T, C) or None, reach: per sample a `reach_targets` tuple or None. Returns one
+    `BodyMotion` per sample."""
+    S, T = joints.shape[:2]
+    _, near = output_times(rot_model.shape[1], model_fps, out_fps)
+    out = []
+    for s in range(S):
+        X = torch.as_tensor(joints[s, :, :NUM_BODY_JOINTS], dtype=body.rest.dtype)        # (T, 22, 3)
+        R0 = analytic_init(X, body.rest[s], rot_model[s, near].to(X.dtype))              # (T, 22, 3, 3)
+        out.append(body.solve(s, joints[s], R0, None if planted is None else planted[s], contact_joints,
+                              reach=None if reach is None else reach[s]))
+    return out

@@ -1,0 +1,97 @@
+"""What the sampler is told and what it returns: sampler settings, the episode loop's
+configuration, one sampled episode, and the resulting `Motion`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from motiongen.sampling.goals import Route
+
+
+@dataclass
+class SamplerSettings:
+    sampler: str = "ddim"          # ddpm | ddim
+    steps: int = 25                # denoising steps (ddpm: respaced when < the training steps)
+    eta: float = 0.0               # DDIM stochasticity
+    guidance_scale: float = 1.0    # classifier-free guidance; 1 = conditional pass only
+
+
+@dataclass
+class LoopConfig:
+    warmup: int = 2                # episodes standing at the start before walking
+    keep_warmup: bool = False      # include the warm-up frames in the output
+    transition: int | None = None  # pinned frames k; None = the checkpoint's mask.max_transition
+    reach: float | None = None     # max target distance per episode (m); None = from the stats
+    reach_fraction: float = 0.7    # reach = this x the farthest pelvis offset seen in training
+    lookahead: bool = True         # target the farthest visible subgoal within reach
+    tolerance: float = 0.25        # pelvis distance (m) that counts as arriving
+    max_episodes: int = 200
+    out_fps: float = 30.0
+    source_fps: float | None = None  # rate of the training data (before stride); None = the checkpoint's
+    project: bool = True           # one body: each episode projected onto it, and the final solve
+    foot_lock: bool = True         # the final solve holds predicted planted feet in place
+    pin_goal: bool = False         # write the goal into the result (the public code); default: the model predicts it
+    smooth: float = 0.0            # Gaussian sigma (output frames) over the motion before the final solve; 0 = off
+    # Actions done with a hand on the nearest placed object: the final solve puts the nearer
+    # hand on it over the frames so labelled. () leaves hands where the network put them.
+    hand_actions: tuple[str, ...] = ("pick up",)
+    # Actions done on a surface (a seat, a bed): while acting, the goal also gives the pelvis
+    # height, `seat_offset` m above the top of the furniture under the goal (the pelvis joint of
+    # a seated SMPL-X body; the synthetic data's median is 0.095). Needs a checkpoint trained
+    # with mask.p_goal_y > 0.
+    seat_actions: tuple[str, ...] = ("sit", "lie down")
+    seat_offset: float = 0.10
+
+
+@dataclass
+class Episode:
+    kind: str                      # warmup | walk | act | idle (majority over samples)
+    start: int                     # index of its first *new* frame in the model-rate output
+    transition: int                # frames pinned at the start of the window
+    target: np.ndarray             # (S, 2) world pelvis target (after clamping)
+    window: np.ndarray             # (S, L, J, 3) world joints of the whole window (after projection)
+    to_world: np.ndarray           # (S, 4, 4) the window's local -> world frame
+    raw: np.ndarray | None = None  # (S, L, J, 3) world joints as the network predicted them
+
+
+@dataclass
+class Motion:
+    """The result of `generate`: world joints at `fps` and everything needed to explain them."""
+
+    joints: np.ndarray             # (S, T, J, 3) float32 world, y-up, metres, at fps: the output
+    fps: float
+    joint_names: list[str]
+    model_joints: np.ndarray       # (S, Tm, J, 3) float32 at the model rate (projected)
+    model_fps: float
+    actions: np.ndarray            # (S, T) int16 action index per output frame, -1 = none
+    action_names: list[str]
+    episode_starts: np.ndarray     # (E,) int: first output frame of each episode's new frames
+    episode_kinds: list[str]
+    route: Route
+    arrival_frame: np.ndarray      # (S, G) int output frame of arrival at each goal, -1 = never
+    arrival_error: np.ndarray      # (S, G) pelvis (x, z) distance to the goal there (m), nan = never
+    arrival_error_body: np.ndarray  # (S, G) same for the hips' midpoint
+    finish_frame: np.ndarray       # (S,) output frame where the sample reached its final goal, -1 = never
+    completed: bool                # every sample reached every goal
+    wall_time: float               # seconds spent generating
+    joints_raw: np.ndarray | None = None   # (S, T, J, 3) the network's joints at fps, before any body
+    planted: np.ndarray | None = None      # (S, T, C) bool predicted planted flags of contact_joints
+    contact_joints: list[str] = field(default_factory=list)
+    bodies: list | None = None             # one motiongen.body.solve.BodyMotion per sample
+    episodes: list[Episode] = field(default_factory=list, repr=False)
+
+    @property
+    def num_samples(self) -> int:
+        return self.joints.shape[0]
+
+    @property
+    def duration(self) -> float:
+        """Seconds of motion per sample."""
+        return (self.joints.shape[1] - 1) / self.fps
+
+    @property
+    def real_time_factor(self) -> float:
+        """Seconds of motion produced (all samples) per second of compute."""
+        return self.num_samples * self.duration / max(self.wall_time, 1e-9)
