@@ -4,10 +4,12 @@
 
 Speed: the `paper` preset with random-init weights (speed does not depend on training) on the
 CPU, DDPM-100 vs DDIM-50/25/10, batch 1 and 8: real-time factor = seconds of motion produced
-(all samples) per second of compute, over a straight 10 m walk in an empty scene.
+(all samples) per second of compute, over a straight 10 m walk in an empty scene. The time
+includes everything `sample.py` does to a motion: the per-episode projection onto one body and
+the final body solve (foot lock); `project=false` measures the network alone.
 Quality: with `ckpt=` (a trained checkpoint, e.g. the demo), the goal-reaching error at the
-same step counts on a fixed goal route: pelvis error on arrival (pinned, so ~0 when reached)
-and the hips' midpoint error (the body's own position), plus how many goals were reached.
+same step counts on a fixed goal route: pelvis and hips-midpoint error on arrival (both the
+body's own: goals are predicted, not pinned), plus how many goals were reached.
 """
 
 from __future__ import annotations
@@ -15,13 +17,14 @@ from __future__ import annotations
 import sys
 import time
 import types
+import warnings
 
 import numpy as np
 import torch
 
 
 def _args(argv):
-    out = {"ckpt": None, "threads": "2", "preset": "paper", "episodes": "6"}
+    out = {"ckpt": None, "threads": "2", "preset": "paper", "episodes": "6", "project": "true"}
     for a in argv:
         k, _, v = a.partition("=")
         out[k] = v
@@ -29,18 +32,27 @@ def _args(argv):
 
 
 def _random_loaded(preset: str):
+    """A paper-size denoiser with random weights in today's layout (absolute joints + stance
+    channels, goal predicted): speed does not depend on training."""
+    from motiongen.data.representation import Layout
     from motiongen.data.windows import NormStats, WindowConfig
     from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, MaskConfig
+    from motiongen.diffusion.masks import predicts_goal
     from motiongen.models import build_model, model_config
     from motiongen.skeleton import BODY
 
-    model = build_model(model_config(preset), 22, 10, 16).eval().requires_grad_(False)
-    center = np.zeros(66, np.float32)
-    center[2] = 0.6
-    return types.SimpleNamespace(model=model, diffusion=GaussianDiffusion(DiffusionConfig()),
-                                 stats=NormStats(center, np.full(66, 1.5, np.float32)), joint_set=BODY,
-                                 action_names=[f"a{i}" for i in range(10)], window=WindowConfig(),
-                                 mask=MaskConfig(), device=torch.device("cpu"))
+    window, mask, diffusion = WindowConfig(), MaskConfig(), DiffusionConfig()
+    layout = Layout.for_window(window, BODY)
+    model = build_model(model_config(preset), 22, 10, window.length, channels=layout.channels)
+    center = np.zeros(layout.channels, np.float32)
+    center[1:layout.pose_channels:3] = 0.6                      # joints around hip height
+    half = np.full(layout.channels, 1.5, np.float32)
+    half[layout.pose_channels:] = 1.0                             # stance channels are +-1 labels
+    return types.SimpleNamespace(model=model.eval().requires_grad_(False), diffusion=GaussianDiffusion(diffusion),
+                                 stats=NormStats(center, half), joint_set=BODY, layout=layout,
+                                 predict_goal=predicts_goal(mask, diffusion.prediction), fps=30.0,
+                                 action_names=[f"a{i}" for i in range(10)], window=window,
+                                 mask=mask, device=torch.device("cpu"))
 
 
 SETTINGS = [("ddpm", 100), ("ddim", 50), ("ddim", 25), ("ddim", 10)]
@@ -53,14 +65,13 @@ def main(argv):
     torch.set_num_threads(int(a["threads"]))
     loaded = _random_loaded(a["preset"])
     episodes = int(a["episodes"])
-    print(f"speed: preset={a['preset']}, {torch.get_num_threads()} threads, {episodes} episodes per run")
+    print(f"speed: preset={a['preset']}, {torch.get_num_threads()} threads, {episodes} episodes per run, "
+          f"body projection + solve {'on' if a['project'] == 'true' else 'off'}")
     print(f"{'sampler':>10} {'batch':>5} {'motion s':>9} {'wall s':>7} {'RTF':>6}")
     for sampler, steps in SETTINGS:
         for batch in (1, 8):
-            loop = LoopConfig(warmup=1, max_episodes=episodes - 1)
+            loop = LoopConfig(warmup=1, max_episodes=episodes - 1, project=a["project"] == "true")
             t = time.perf_counter()
-            import warnings
-
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 m = generate(loaded, None, (0, 0), [Goal([0, 100.0])], path="straight", num_samples=batch,
@@ -79,8 +90,6 @@ def main(argv):
     print(f"quality: {a['ckpt']} (step {ld.step}), 3 goals over ~7 m in an empty scene, 4 samples")
     print(f"{'sampler':>10} {'reached':>8} {'pelvis m':>9} {'hips m':>7} {'RTF':>6}")
     for sampler, steps in SETTINGS:
-        import warnings
-
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             m = generate(ld, None, (0, 0), goals, num_samples=4, sampler=SamplerSettings(sampler, steps),

@@ -1,11 +1,13 @@
 """Training throughput of the denoiser (forward + backward + Adam) vs the CPU's matmul peak.
 
-    python benchmarks/train_step.py [--preset paper] [--batch 64] [--iters 5] [--no-dropout]
+    python benchmarks/train_step.py [--preset paper] [--batch 64] [--iters 5] [--no-dropout] [--compile]
 
 Prints samples/s, achieved FLOP/s (FLOPs counted by torch.utils.flop_counter over one
 forward + backward: matmuls and attention only, so elementwise work, LayerNorm and Adam
 count as overhead), and the ratio to the fp32 peak of a large torch.mm measured in the same
-run with the same threads. Figures are printed, nothing is asserted.
+run with the same threads. `--compile` also times the same step through torch.compile
+(inductor), interleaved with the eager steps, and prints the compiled / eager ratio and the
+one-off compile time. Figures are printed, nothing is asserted.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=0, help="0 = torch default")
     ap.add_argument("--unfused-adam", action="store_true")
     ap.add_argument("--no-dropout", action="store_true", help="dropout 0 everywhere (isolates its cost)")
+    ap.add_argument("--compile", action="store_true", help="also time torch.compile(model), interleaved")
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -66,10 +69,10 @@ def main() -> None:
                      actions=(torch.rand(B, L, A) < 0.3).float())
     mask = sample_known_mask(B, L, J, generator=g)
 
-    def step() -> None:
+    def step(net=model) -> None:
         c = drop_conditions(cond, 0.1, 0.1, g)
         t = diffusion.sample_timesteps(B, g)
-        loss = diffusion.training_losses(model, x0, t, c, known_mask=mask, generator=g)["loss"]
+        loss = diffusion.training_losses(net, x0, t, c, known_mask=mask, generator=g)["loss"]
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -107,6 +110,24 @@ def main() -> None:
     print(f"achieved (best step): {achieved / 1e9:.1f} GFLOP/s = {100 * achieved / peak:.0f}% of the best peak")
     print(f"per-step ratio to the peak measured just before it: median {100 * ratios[len(ratios) // 2]:.0f}%, "
           f"range {100 * ratios[0]:.0f}-{100 * ratios[-1]:.0f}%")
+    if args.compile:
+        compiled = torch.compile(model)
+        t0 = time.perf_counter()
+        for _ in range(3):          # conditions dropped or not compile separate graphs
+            step(compiled)
+        compile_s = time.perf_counter() - t0
+        eager, comp = [], []
+        for _ in range(args.iters):  # interleaved, so both see the same contention
+            t0 = time.perf_counter()
+            step()
+            eager.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            step(compiled)
+            comp.append(time.perf_counter() - t0)
+        e, c = sorted(eager)[len(eager) // 2], sorted(comp)[len(comp) // 2]
+        print(f"torch.compile (inductor): compile + 3 warm-up steps {compile_s:.0f} s; median step eager "
+              f"{e * 1e3:.0f} ms, compiled {c * 1e3:.0f} ms -> {B / c:.1f} vs {B / e:.1f} samples/s, "
+              f"compiled/eager speed {e / c:.2f}x")
 
 
 if __name__ == "__main__":
