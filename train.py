@@ -35,5 +35,6 @@ def main(cfg: DictConfig) -> None:
 if __name__ == "__main__":
     from motiongen.cli import check_hydra_overrides
 
-    check_hydra_overrides()     # one line and exit 2 for a malformed override, as for every user error
+    # one line and exit 2 for a malformed override or an unknown key, as for every user error
+    check_hydra_overrides(config_name="train", config_dir=Path(__file__).parent / "configs")
     main()

@@ -13,6 +13,18 @@ from motiongen.errors import ConfigError, MotiongenError
 F = TypeVar("F", bound=Callable)
 
 
+def _register_resolvers() -> None:
+    """`${mg.default:${out},runs/...}` in the Hydra configs: the value, or the default when it
+    is null. (oc.select falls back only for a *missing* key; `out: null` is present.)"""
+    from omegaconf import OmegaConf
+
+    if not OmegaConf.has_resolver("mg.default"):
+        OmegaConf.register_new_resolver("mg.default", lambda value, default: default if value is None else value)
+
+
+_register_resolvers()     # every Hydra entry point imports this module before hydra.main runs
+
+
 def user_errors_exit_2(fn: F) -> F:
     """Wrap a CLI entry point so a `MotiongenError` prints `error: <message>` and exits 2.
 
@@ -32,7 +44,8 @@ def user_errors_exit_2(fn: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
-def check_hydra_overrides(argv: list[str] | None = None) -> None:
+def check_hydra_overrides(argv: list[str] | None = None, config_name: str | None = None,
+                          config_dir=None) -> None:
     """Exit 2 with one line if a command-line override of a Hydra script is malformed.
 
     Hydra parses overrides inside `hydra.main`, before our function (and so
@@ -40,6 +53,11 @@ def check_hydra_overrides(argv: list[str] | None = None) -> None:
     HYDRA_FULL_ERROR hint, exit 1. Call this first in `if __name__ == "__main__":`: it splits
     argv with Hydra's own argument parser (so flags such as `--cfg job` or `-m` are left
     alone) and parses each override with Hydra's own grammar.
+
+    With `config_name` and `config_dir` (the script's configs/), the overrides are also composed
+    against the config once (about a tenth of a second), so an unknown key or a missing option of
+    a config group is one line and exit 2 too, instead of Hydra's message and exit 1. Sweeps
+    (`-m`, `a=1,2`) are left to Hydra.
     """
     from hydra._internal.utils import get_args_parser
     from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -63,6 +81,35 @@ def check_hydra_overrides(argv: list[str] | None = None) -> None:
             print(f"error: malformed override {override!r}: {reason or 'not valid override syntax'}",
                   file=sys.stderr, flush=True)
             sys.exit(2)
+    if config_name is not None and config_dir is not None and not args.multirun:
+        _check_composes(parser, list(args.overrides), config_name, config_dir)
+
+
+def _check_composes(parser, overrides: list[str], config_name: str, config_dir) -> None:
+    from pathlib import Path
+
+    from hydra import compose, initialize_config_dir
+    from hydra.errors import ConfigCompositionException, MissingConfigException
+
+    if any(o.is_sweep_override() for o in parser.parse_overrides(overrides)):
+        return
+    try:
+        with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base="1.3"):
+            compose(config_name, overrides=overrides, return_hydra_config=True)
+    except MissingConfigException as e:
+        lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
+        options = [ln for ln in lines[2:] if not ln.startswith(("Config search path", "provider="))]
+        head = lines[0].split(": ", 1)[-1] if lines else "missing config"
+        print(f"error: {head}" + (f"; available: {', '.join(options)}" if options else ""),
+              file=sys.stderr, flush=True)
+        sys.exit(2)
+    except ConfigCompositionException as e:
+        lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
+        msg = "; ".join(lines[:2]) if lines else "cannot apply the overrides"
+        if msg.startswith("Could not override"):
+            msg = "unknown key: " + msg
+        print(f"error: {msg} (see --cfg job for the keys)", file=sys.stderr, flush=True)
+        sys.exit(2)
 
 
 _TRUE, _FALSE = ("true", "1", "yes", "on"), ("false", "0", "no", "off")

@@ -51,3 +51,18 @@ def test_well_formed_overrides_still_reach_hydra():
     r = run_script("sample.py", "--cfg", "job", "goals=[[1,0],[2,2]]")
     assert r.returncode == 0, r.stderr
     assert "goals:\n- - 1\n  - 0\n- - 2\n  - 2\n" in r.stdout
+
+
+@pytest.mark.parametrize("script", ["train.py", "sample.py", "evaluate.py"])
+def test_unknown_key_and_missing_option_are_one_line_and_exit_2(script, tmp_path):
+    r = run_script(script, "nonsense_key=3", f"hydra.run.dir={tmp_path / 'run'}")
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip().splitlines() == [
+        "error: unknown key: Could not override 'nonsense_key'.; To append to your config use "
+        "+nonsense_key=3 (see --cfg job for the keys)"], r.stderr
+    assert not (tmp_path / "run").exists()
+    if script == "train.py":
+        r = run_script(script, "model=nonexist", f"hydra.run.dir={tmp_path / 'run'}")
+        assert r.returncode == 2, r.stderr
+        assert r.stderr.strip().splitlines() == [
+            "error: Could not find 'model/nonexist'; available: paper, reference, tiny"], r.stderr

@@ -150,3 +150,16 @@ def test_checkpoints_from_before_the_body_changes_load_as_they_were_trained(tmp_
     assert ld.fps == 30.0                                                      # no fps recorded: the old assumption
     new = load_model(path)
     assert new.layout.channels == 70 and new.predict_goal
+
+
+def test_default_output_directory_is_a_timestamped_run_dir(files, tmp_path):
+    """Without out=, outputs go to runs/sample/<date_time>/ under the working directory (the
+    config's `${mg.default:${out},...}`; `oc.select` returned None for `out: null` and Hydra
+    stopped with a traceback before this was fixed)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
+    r = subprocess.run([sys.executable, str(ROOT / "sample.py"), f"ckpt={files['ckpt']}", "video=false",
+                        "goals=[[0.5,0.5]]", "loop.max_episodes=2"], cwd=tmp_path, env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    runs = list((tmp_path / "runs" / "sample").iterdir())
+    assert len(runs) == 1 and (runs[0] / "motion.npz").is_file() and (runs[0] / "summary.json").is_file()
