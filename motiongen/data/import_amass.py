@@ -30,11 +30,10 @@ from scipy.spatial.transform import Rotation, Slerp
 from motiongen.body.model import BodyModel, load_body_model
 from motiongen.cli import parse_key_values, user_errors_exit_2
 from motiongen.data.bvh_detect import check_plausible
-from motiongen.data.format import SMPLX_FIELDS, DatasetWriter
-from motiongen.data.import_bvh import empty_grid, foot_contact
-from motiongen.data.occupancy import OccupancyGrid
+from motiongen.data.format import SMPLX_FIELDS
+from motiongen.data.import_bvh import load_clips, write_clips
 from motiongen.errors import ConfigError, DataError
-from motiongen.skeleton import BODY, FOOT_JOINTS, HEAD
+from motiongen.skeleton import FOOT_JOINTS, HEAD
 
 LAYOUTS = {165: "smplx", 156: "smplh"}      # poses width -> layout; the body is columns 0:66 in both
 RATE_KEYS = ("mocap_framerate", "mocap_frame_rate")
@@ -228,41 +227,17 @@ def run(args: dict) -> Path:
     inputs = args["inputs"]
     if not inputs:
         raise ConfigError("inputs=[]: give at least one AMASS .npz file")
-    fps, scene_id = args["fps"], args["scene_id"]
+    fps = args["fps"]
     if not fps > 0:
         raise ConfigError(f"fps must be positive, got {fps}")
     up = parse_up(args["up"]) if args.get("up") else None
     bm = _body_model(args.get("body_model"))
-    motions: list[tuple[str, ImportedAmass]] = []
-    names: set[str] = set()
-    for path in inputs:
-        m = import_amass(path, bm, fps, up)
-        name, k = Path(path).stem, 1
-        while name in names:
-            name, k = f"{Path(path).stem}_{k}", k + 1
-        names.add(name)
-        motions.append((name, m))
-    grid = OccupancyGrid.load(args["scene"]) if args.get("scene") else empty_grid([m.joints for _, m in motions])
-
-    vocab = [args["action"]] if args.get("action") else []
-    w = DatasetWriter(args["out"], joint_set=BODY, actions=vocab, fps=fps, has_smplx=True, overwrite=args["overwrite"])
-    try:
-        w.add_scene(scene_id, grid=grid, name=Path(args["scene"]).name if args.get("scene") else "empty_floor")
-        info = []
-        for (name, m), path in zip(motions, inputs):
-            T = len(m.joints)
-            w.add_sequence(name, scene=scene_id, joints=m.joints, actions=np.ones((T, len(vocab)), bool),
-                           contact=foot_contact(m.joints, fps), smplx=m.params)
-            info.append({"name": name, "file": str(path), "layout": m.layout, "gender": m.gender, "up": m.up,
-                         "up_from": m.up_from, "source_fps": m.source_fps, "betas_used": m.betas_used,
-                         "height_m": round(m.height, 4)})
-        splits = {s: [] for s in ("train", "val", "test")}
-        splits[args["split"]] = [scene_id]
-        return w.finish(splits=splits, source="amass", extra={"amass_import": {"body_model": str(bm.path),
-                                                                               "sequences": info}})
-    except BaseException:
-        w.abort()
-        raise
+    motions = load_clips(inputs, lambda path: import_amass(path, bm, fps, up))
+    info = [{"name": name, "file": str(path), "layout": m.layout, "gender": m.gender, "up": m.up,
+             "up_from": m.up_from, "source_fps": m.source_fps, "betas_used": m.betas_used,
+             "height_m": round(m.height, 4)} for (name, m), path in zip(motions, inputs)]
+    return write_clips(args, motions, fps, source="amass", smplx=True,
+                       extra={"amass_import": {"body_model": str(bm.path), "sequences": info}})
 
 
 @user_errors_exit_2

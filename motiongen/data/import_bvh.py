@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from motiongen.cli import parse_key_values, user_errors_exit_2
-from motiongen.data.bvh import UNITS, ImportedMotion, import_bvh, load_mapping
+from motiongen.data.bvh import UNITS, import_bvh, load_mapping
 from motiongen.data.bvh_detect import parse_up
 from motiongen.data.format import DatasetWriter
 from motiongen.data.occupancy import OccupancyGrid
@@ -74,7 +74,7 @@ def run(args: dict[str, str]) -> Path:
     if not inputs:
         raise ConfigError("inputs=[]: give at least one BVH file")
     mapping = load_mapping(args["mapping"]) if args.get("mapping") else None
-    fps, scene_id = args["fps"], args["scene_id"]
+    fps = args["fps"]
     if not fps > 0:
         raise ConfigError(f"fps must be positive, got {fps}")
     unit = args.get("unit") or None
@@ -86,34 +86,48 @@ def run(args: dict[str, str]) -> Path:
             up = parse_up(up)
         except MotiongenError:
             raise ConfigError(f"up={up!r}: expected x, y or z with an optional sign (e.g. z, -y)") from None
-    split, overwrite = args["split"], args["overwrite"]
 
-    motions: list[tuple[str, ImportedMotion]] = []
-    names: set[str] = set()
+    motions = load_clips(inputs, lambda path: import_bvh(path, mapping, fps=fps, unit=unit, up=up))
+    info = [{"name": name, "file": str(path), "layout": m.layout, "unit": m.unit, "unit_from": m.unit_from,
+             "up_axis": m.up_axis, "up_from": m.up_from, "height_m": round(m.height, 4), "source_fps": m.source_fps}
+            for (name, m), path in zip(motions, inputs)]
+    return write_clips(args, motions, fps, source="bvh", extra={"bvh_import": info})
+
+
+def load_clips(inputs: list, load) -> list[tuple[str, object]]:
+    """(name, load(path)) per input file, named by the file's stem (made unique with _1, _2, ...)."""
+    clips, names = [], set()
     for path in inputs:
-        m = import_bvh(path, mapping, fps=fps, unit=unit, up=up)
+        m = load(path)
         name, k = Path(path).stem, 1
         while name in names:
             name, k = f"{Path(path).stem}_{k}", k + 1
         names.add(name)
-        motions.append((name, m))
-    grid = OccupancyGrid.load(args["scene"]) if args.get("scene") else empty_grid([m.joints for _, m in motions])
+        clips.append((name, m))
+    return clips
 
+
+def write_clips(args: dict, clips: list[tuple[str, object]], fps: float, source: str, extra: dict,
+                smplx: bool = False) -> Path:
+    """Write imported clips (each with `.joints` (T, 22, 3), and `.params` SMPL-X fields when
+    `smplx`) as one scene of a dataset: the scene= grid or an empty one over the clips, every
+    frame labelled with action= if given, floor contact from the joints, all in split=.
+    Nothing is left behind on failure (the writer aborts)."""
+    scene_id = args["scene_id"]
+    grid = OccupancyGrid.load(args["scene"]) if args.get("scene") else empty_grid([m.joints for _, m in clips])
     vocab = [args["action"]] if args.get("action") else []
-    w = DatasetWriter(args["out"], joint_set=BODY, actions=vocab, fps=fps, overwrite=overwrite)
+    w = DatasetWriter(args["out"], joint_set=BODY, actions=vocab, fps=fps, has_smplx=smplx,
+                      overwrite=args["overwrite"])
     try:
         w.add_scene(scene_id, grid=grid, name=Path(args["scene"]).name if args.get("scene") else "empty_floor")
-        info = []
-        for (name, m), path in zip(motions, inputs):
+        for name, m in clips:
             T = len(m.joints)
             w.add_sequence(name, scene=scene_id, joints=m.joints.astype(np.float32),
-                           actions=np.ones((T, len(vocab)), bool), contact=foot_contact(m.joints, fps))
-            info.append({"name": name, "file": str(path), "layout": m.layout, "unit": m.unit, "unit_from": m.unit_from,
-                         "up_axis": m.up_axis, "up_from": m.up_from, "height_m": round(m.height, 4),
-                         "source_fps": m.source_fps})
+                           actions=np.ones((T, len(vocab)), bool), contact=foot_contact(m.joints, fps),
+                           smplx=m.params if smplx else None)
         splits = {s: [] for s in ("train", "val", "test")}
-        splits[split] = [scene_id]
-        return w.finish(splits=splits, source="bvh", extra={"bvh_import": info})
+        splits[args["split"]] = [scene_id]
+        return w.finish(splits=splits, source=source, extra=extra)
     except BaseException:
         w.abort()
         raise
