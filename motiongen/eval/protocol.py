@@ -28,6 +28,7 @@ from motiongen.errors import ConfigError
 from motiongen.eval import metrics as M
 from motiongen.sampling.goals import Goal, Route, plan_route, walkable_map
 from motiongen.skeleton import LEFT_HIP, PELVIS, RIGHT_HIP, joint_set_for
+from motiongen.spans import true_runs
 
 SETTINGS = ("static", "dynamic")
 MAX_ACTION_SECONDS = 10.0
@@ -118,7 +119,7 @@ class SceneContext:
         out: list[Spot] = []
         for seq in self.sequences:
             lab = np.asarray(self.ds.actions[seq.start:seq.end, a])
-            for s, e in _runs(lab):
+            for s, e in true_runs(lab):
                 f = seq.start + (s + e) // 2
                 xz = np.asarray(self.ds.joints[f, PELVIS], np.float64)[[0, 2]]
                 oid = pose = None
@@ -237,13 +238,6 @@ class SurfaceDistance:
             depth = self._free.query(flat[inside])[0] - self._half if self._free is not None else 1e3
             d[inside] = -np.maximum(depth, 0.0)
         return d.reshape(p.shape[:-1])
-
-
-def _runs(mask) -> list[tuple[int, int]]:
-    """[(start, end)) of the True runs of a 1-D bool array."""
-    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
-    edges = np.flatnonzero(np.diff(m.astype(np.int8)))
-    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
 
 
 # ---------------------------------------------------------------------------------------
@@ -533,7 +527,7 @@ def reference_metrics(ctx: SceneContext, setting: str, cfg: ProtocolConfig, epis
             # Closest hand approach per interaction segment, averaged over the segments.
             a = ds.action_names.index(cfg.dynamic_action)
             idx = _hand_idx(names)
-            segs = _runs(lab[:, a])
+            segs = true_runs(lab[:, a])
             if segs and idx:
                 ds_ = []
                 for s, e in segs:

@@ -20,10 +20,11 @@ that slides visibly leaves its disc.
 
 from __future__ import annotations
 
-
 import numpy as np
+from scipy.ndimage import uniform_filter
 
 from motiongen.skeleton import NUM_BODY_JOINTS
+from motiongen.spans import true_runs
 
 CONTACT_RGB = np.array([0.62, 1.0, 0.0])     # lime: no sample colour, not the goals' amber
 DISC_RADIUS = 0.11                           # metres; wider than a foot so a rim shows round it
@@ -168,14 +169,8 @@ def contact_anchors(joints: np.ndarray, planted: np.ndarray, contact_joints) -> 
     out = np.full((S, T, C, 2), np.nan)
     for s in range(S):
         for c, j in enumerate(contact_joints):
-            start = None
-            for t in range(T):
-                if not planted[s, t, c]:
-                    start = None
-                    continue
-                if start is None:
-                    start = t
-                out[s, t, c] = joints[s, start, j, [0, 2]]
+            for a, b in true_runs(planted[s, :, c]):
+                out[s, a:b, c] = joints[s, a, j, [0, 2]]
     return out
 
 
@@ -190,16 +185,6 @@ def disc_triangles(anchors: np.ndarray, radius: float = DISC_RADIUS, n: int = 20
     tri = np.stack([centre, rim[:, :-1], rim[:, 1:]], 2)                               # (N, n, 3, 2)
     tri = np.stack([tri[..., 0], np.full(tri.shape[:-1], 0.002), tri[..., 1]], -1)    # (N, n, 3, 3)
     return tri.reshape(-1, 3, 3)
-
-
-def _box_blur(a: np.ndarray, r: int) -> np.ndarray:
-    """Separable box blur of a 2-D array with radius r (same shape, zero outside)."""
-    for axis in (0, 1):
-        p = np.pad(a, [(r + 1, r) if ax == axis else (0, 0) for ax in (0, 1)])
-        c = np.cumsum(p, axis=axis)
-        a = (np.take(c, np.arange(2 * r + 1, c.shape[axis]), axis) -
-             np.take(c, np.arange(0, c.shape[axis] - 2 * r - 1), axis)) / (2 * r + 1)
-    return a
 
 
 class BodyLayer:
@@ -269,7 +254,10 @@ class BodyLayer:
             return
         r0, r1, c0, c1 = cr
         _, cover = rasterise(xy - [c0, r0], invz, np.zeros((len(xy), 0)), r1 - r0, c1 - c0)
-        a = SHADOW_ALPHA * _box_blur(_box_blur(cover.astype(np.float32), blur), blur)  # (h, w)
+        # Two box passes (zero outside the crop): a soft-edged, roughly Gaussian penumbra.
+        size = 2 * blur + 1
+        a = SHADOW_ALPHA * uniform_filter(uniform_filter(cover.astype(np.float32), size, mode="constant"), size,
+                                          mode="constant")                                  # (h, w)
         sub = frame[r0:r1, c0:c1]
         sub[:] = (sub * (1.0 - a[..., None])).astype(np.uint8)
 

@@ -11,6 +11,7 @@ from scipy.interpolate import CubicSpline
 
 from motiongen.body.fit import analytic_init
 from motiongen.skeleton import NUM_BODY_JOINTS
+from motiongen.spans import true_runs
 
 
 def output_times(num_model_frames: int, model_fps: float, out_fps: float) -> tuple[np.ndarray, np.ndarray]:
@@ -31,12 +32,6 @@ def resample(x: np.ndarray, model_fps: float, out_fps: float) -> np.ndarray:
     return CubicSpline(np.arange(Tm) / model_fps, x, axis=1)(t_out)
 
 
-def _runs(col: np.ndarray) -> list[tuple[int, int]]:
-    """[(start, end)) of the True runs of a 1-D bool array."""
-    e = np.flatnonzero(np.diff(np.concatenate([[0], col.astype(np.int8), [0]])))
-    return list(zip(e[::2].tolist(), e[1::2].tolist()))
-
-
 def planted_at_output(stance: np.ndarray, joints: np.ndarray, contact_joints, model_fps: float, out_fps: float,
                       min_frames: int = 5, min_swing: int = 8, same_spot: float = 0.05) -> np.ndarray:
     """Feet to lock, (S, T, C) bool at the output rate, from the predicted stance channels
@@ -54,10 +49,10 @@ def planted_at_output(stance: np.ndarray, joints: np.ndarray, contact_joints, mo
     for s in range(out.shape[0]):
         for c in range(out.shape[2]):
             col = out[s, :, c]
-            for a, b in _runs(col):
+            for a, b in true_runs(col):
                 if b - a < min_frames:
                     col[a:b] = False
-            spans = _runs(col)
+            spans = true_runs(col)
             for (a0, b0), (a1, b1) in zip(spans[:-1], spans[1:]):
                 gap = a1 - b0
                 if gap >= min_swing:

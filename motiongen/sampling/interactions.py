@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from motiongen.skeleton import BODY_JOINT_NAMES, HAND_JOINTS
+from motiongen.spans import ramp_weights, true_runs
 
 
 def object_points(objects) -> list[np.ndarray]:
@@ -32,7 +33,6 @@ def reach_targets(joints: np.ndarray, labels: np.ndarray, action: int, hands, po
     whole body. Returns (frames, joints, points, weights) or None when nothing is in reach."""
     if not points:
         return None
-    runs = np.flatnonzero(np.diff(np.concatenate([[0], (labels == action).astype(np.int8), [0]])))
     frames, js, ps, ws = [], [], [], []
     allp = np.concatenate(points)                                                         # (N, 3)
     centre = allp.mean(0)
@@ -43,7 +43,7 @@ def reach_targets(joints: np.ndarray, labels: np.ndarray, action: int, hands, po
     if scene is not None:
         free = ~scene.occupied(cand, outside=False)
         cand = cand[free] if free.any() else cand
-    for a, b in zip(runs[::2], runs[1::2]):
+    for a, b in true_runs(labels == action):
         best = None
         for h in hands:
             mean = joints[a:b, h].mean(0)                                                  # (3,)
@@ -55,7 +55,7 @@ def reach_targets(joints: np.ndarray, labels: np.ndarray, action: int, hands, po
         if dist > max_dist:
             continue
         n = b - a
-        w = np.minimum(1.0, np.minimum(np.arange(1, n + 1), np.arange(n, 0, -1)) / ramp)
+        w = ramp_weights(n, ramp)
         frames.append(np.arange(a, b)), js.append(np.full(n, h)), ps.append(np.repeat(target[None], n, 0))
         ws.append(w)
     if not frames:
@@ -108,16 +108,14 @@ def seat_shift(joints: np.ndarray, labels: np.ndarray, actions: dict, targets: l
     weight[list(FOOT_JOINTS)] = 0.0
     weight[knees] = 0.5
     for a, goals in actions.items():
-        runs = np.flatnonzero(np.diff(np.concatenate([[0], (labels == a).astype(np.int8), [0]])))
         tg = np.asarray([targets[g] for g in goals], np.float64)                            # (K, 3)
-        for s, e in zip(runs[::2], runs[1::2]):
+        for s, e in true_runs(labels == a):
             mid = np.median(out[s:e, PELVIS], axis=0)                                        # (3,)
             d = np.linalg.norm((tg - mid)[:, [0, 2]], axis=-1)
             if not np.isfinite(d).any():
                 continue
             offset = tg[int(np.nanargmin(d))] - mid                                          # (3,)
-            n = e - s
-            w = np.minimum(1.0, np.minimum(np.arange(1, n + 1), np.arange(n, 0, -1)) / ramp)  # (n,)
+            w = ramp_weights(e - s, ramp)                                                     # (n,)
             out[s:e] += w[:, None, None] * weight[None, :, None] * offset
             frames.append(np.arange(s, e)), points.append(out[s:e, PELVIS]), ws.append(w)
     if not frames:
