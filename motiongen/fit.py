@@ -82,23 +82,19 @@ def load_input(opts: dict) -> tuple[np.ndarray, float, str]:
 
 def export_meshes(bm, fit, out_dir: Path, fmt: str, max_frames: int) -> int:
     """Per-frame meshes (every k-th frame, at most max_frames) -> number written."""
-    import torch
     import trimesh
 
     T = fit.transl.shape[0]
     stride = max(1, math.ceil(T / max(max_frames, 1)))
     frames = list(range(0, T, stride))
     out_dir.mkdir(parents=True, exist_ok=True)
-    with torch.no_grad():
-        for i in range(0, len(frames), 32):
-            idx = frames[i:i + 32]
-            V = bm.vertices(torch.as_tensor(fit.global_orient[idx]), torch.as_tensor(fit.body_pose[idx]),
-                            torch.as_tensor(fit.transl[idx]), torch.as_tensor(fit.betas)).numpy()
-            for t, v in zip(idx, V):
-                mesh = trimesh.Trimesh(v, bm.faces, process=False)
-                tmp = out_dir / f".frame_{t:05d}.{os.getpid()}.tmp.{fmt}"
-                mesh.export(tmp, file_type=fmt)
-                os.replace(tmp, out_dir / f"frame_{t:05d}.{fmt}")
+    for i in range(0, len(frames), 32):
+        idx = frames[i:i + 32]
+        for t, v in zip(idx, bm.motion_vertices(fit, idx)):
+            mesh = trimesh.Trimesh(v, bm.faces, process=False)
+            tmp = out_dir / f".frame_{t:05d}.{os.getpid()}.tmp.{fmt}"
+            mesh.export(tmp, file_type=fmt)
+            os.replace(tmp, out_dir / f"frame_{t:05d}.{fmt}")
     return len(frames)
 
 

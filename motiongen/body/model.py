@@ -151,6 +151,21 @@ class BodyModel(torch.nn.Module):
             }
         return self._mesh_buffers
 
+    def motion_vertices(self, params, frames=slice(None), vertex_ids=None) -> np.ndarray:
+        """(n, K, 3) mesh vertices (numpy, the model's dtype) of a motion's parameters at
+        `frames` (a slice or indices), only `vertex_ids` (default all). params: anything with
+        global_orient (T, 3), body_pose (T, 63), transl (T, 3), betas (nβ,) — a `FitResult`, a
+        `BodyMotion`, an AMASS-style npz's fields."""
+        dev, dt = self.J_template.device, self.J_template.dtype
+
+        def t(a, f=frames):
+            return torch.as_tensor(np.asarray(a)[f], dtype=dt, device=dev)
+
+        with torch.no_grad():
+            v = self.vertices(t(params.global_orient), t(params.body_pose), t(params.transl),
+                              t(params.betas, slice(None)), vertex_ids=vertex_ids)
+        return v.cpu().numpy()
+
     def vertices(self, global_orient, body_pose, transl=None, betas=None, left_hand_pose=None,
                  right_hand_pose=None, jaw_pose=None, leye_pose=None, reye_pose=None,
                  vertex_ids=None) -> torch.Tensor:

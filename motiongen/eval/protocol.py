@@ -413,15 +413,7 @@ class PairResult:
 def body_vertices(bm, body, frames: int, every_frame: int = 3, every_vertex: int = 8) -> np.ndarray:
     """(T', V', 3) mesh vertices of the first `frames` frames of a `BodyMotion`: every 3rd frame,
     every 8th vertex (enough to find skin in furniture; a fraction of the cost of whole meshes)."""
-    import torch
-
-    f = slice(0, frames, every_frame)
-    ids = np.arange(0, bm.num_vertices, every_vertex)
-    t = lambda a: torch.as_tensor(np.asarray(a)[f], dtype=bm.J_template.dtype)  # noqa: E731
-    with torch.no_grad():
-        v = bm.vertices(t(body.global_orient), t(body.body_pose), t(body.transl),
-                        torch.as_tensor(body.betas, dtype=bm.J_template.dtype), vertex_ids=ids)
-    return v.numpy()
+    return bm.motion_vertices(body, slice(0, frames, every_frame), np.arange(0, bm.num_vertices, every_vertex))
 
 
 def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler, body_model=None) -> PairResult:

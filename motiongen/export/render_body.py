@@ -88,15 +88,7 @@ class BodyMeshes:
         return self._cache[s][1][i - start]
 
     def _pose(self, s: int, idx: np.ndarray) -> np.ndarray:
-        import torch
-
-        bd, dev, dt = self.bodies[s], self.bm.J_template.device, self.bm.J_template.dtype
-        go, pose, tr = (torch.as_tensor(np.asarray(getattr(bd, k))[idx], dtype=dt, device=dev)
-                        for k in ("global_orient", "body_pose", "transl"))
-        betas = torch.as_tensor(np.asarray(bd.betas), dtype=dt, device=dev)
-        with torch.no_grad():
-            v = self.bm.vertices(go, pose, tr, betas, vertex_ids=self.ids)               # (n, K, 3)
-        return v.cpu().numpy().astype(np.float64)
+        return self.bm.motion_vertices(self.bodies[s], idx, vertex_ids=self.ids).astype(np.float64)   # (n, K, 3)
 
 
 def rasterise(xy: np.ndarray, invz: np.ndarray, colour: np.ndarray, height: int,
