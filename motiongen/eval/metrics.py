@@ -107,6 +107,28 @@ def grounded_slide(joints, fps: float, height_thresh: float = 0.05, foot_joints:
     return float(np.median(speed[on])) if on.any() else float("nan")
 
 
+def body_metrics(joints, fps: float, parents: Sequence[int]) -> dict:
+    """The one-body figures of a motion (T, J, 3), as every table reports them: bone-length CV
+    (median over bones) and largest relative deviation, grounded-toe median slide (m/s, NaN
+    when no foot comes down) and the foot skating ratio."""
+    b = bone_consistency(joints, parents)
+    return {"bone_cv": b.cv_median, "bone_max_dev": b.max_deviation, "slide_mps": grounded_slide(joints, fps),
+            "foot_skating": foot_skating_ratio(joints, fps)}
+
+
+def finite_mean(xs) -> float:
+    """Mean of the finite values among xs (None and NaN skipped); NaN when there are none."""
+    v = np.asarray([x for x in xs if x is not None and np.isfinite(x)], np.float64)
+    return float(v.mean()) if v.size else float("nan")
+
+
+def finite_median(xs) -> float:
+    """Median of the finite values among xs (grounded slide over motions: a floating motion is
+    NaN, not zero); NaN when there are none."""
+    v = np.asarray([x for x in xs if x is not None and np.isfinite(x)], np.float64)
+    return float(np.median(v)) if v.size else float("nan")
+
+
 # ---------------------------------------------------------------------------------------
 # Goal reaching
 
@@ -383,7 +405,8 @@ def pskl(a, b, fps: float, length: int | None = None, eps: float = 1e-12) -> tup
     return kl_ab, kl_ba
 
 
-__all__ = ["TOE_JOINTS", "bone_lengths", "BoneConsistency", "bone_consistency", "grounded_slide", "foot_skating_frames", "foot_skating_ratio", "goal_distances", "goal_success",
+__all__ = ["TOE_JOINTS", "bone_lengths", "BoneConsistency", "bone_consistency", "grounded_slide", "body_metrics",
+           "finite_mean", "finite_median", "foot_skating_frames", "foot_skating_ratio", "goal_distances", "goal_success",
            "trajectory_fail_rate", "SignedDistance", "scene_penetration", "floor_penetration",
            "DEFAULT_CONTACT_PARTS", "DEFAULT_SKIN_OFFSET", "contact_rate", "apd", "mean_jerk",
            "SeamJump", "seam_jump", "pskl"]

@@ -4,16 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from motiongen.data.bvh import import_bvh
 from motiongen.errors import ConfigError
 from motiongen.eval import metrics as M
 from motiongen.skeleton import BODY
-
-
-def _finite(xs) -> np.ndarray:
-    return np.asarray([x for x in xs if x is not None and np.isfinite(x)], np.float64)
 
 
 def mocap_body_metrics(paths, fps: float = 30.0) -> dict:
@@ -30,11 +24,9 @@ def mocap_body_metrics(paths, fps: float = 30.0) -> dict:
     rows = []
     for f in files:
         j = import_bvh(f, fps=fps).joints
-        b = M.bone_consistency(j, BODY.parents)
-        rows.append({"bone_cv": b.cv_median, "bone_max_dev": b.max_deviation, "slide_mps": M.grounded_slide(j, fps),
-                     "foot_skating": M.foot_skating_ratio(j, fps), "jerk": M.mean_jerk(j, fps),
+        rows.append({**M.body_metrics(j, fps, BODY.parents), "jerk": M.mean_jerk(j, fps),
                      "floor_penetration_frames": M.floor_penetration(j)["frame_ratio"]})
-    out = {k: float(_finite(r[k] for r in rows).mean()) for k in rows[0]}
-    out["slide_mps"] = float(np.median(_finite(r["slide_mps"] for r in rows)))
+    out = {k: M.finite_mean(r[k] for r in rows) for k in rows[0]}
+    out["slide_mps"] = M.finite_median(r["slide_mps"] for r in rows)
     out["n_sequences"], out["files"] = len(files), [f.name for f in files]
     return out

@@ -359,10 +359,7 @@ def motion_metrics(ctx: SceneContext, joints, fps: float, names, labels, action_
     j = np.asarray(joints, np.float64)
     pen = M.scene_penetration(j, ctx.grid, sdf=ctx.sdf)
     flo = M.floor_penetration(j)
-    bones = M.bone_consistency(j, joint_set_for(names).parents)
-    out = {"foot_skating": M.foot_skating_ratio(j, fps), "slide_mps": M.grounded_slide(j, fps),
-           "bone_cv": bones.cv_median, "bone_max_dev": bones.max_deviation,
-           "penetration_frames": pen["frame_ratio"],
+    out = {**M.body_metrics(j, fps, joint_set_for(names).parents), "penetration_frames": pen["frame_ratio"],
            "penetration_max_m": pen["max_depth"], "floor_penetration_frames": flo["frame_ratio"],
            "jerk": M.mean_jerk(j, fps)}
     if vertices is not None:
@@ -549,17 +546,6 @@ def pskl_sets(a, b, fps: float, n: int) -> tuple[float, float]:
     return M.pskl(ca, cb, fps, length=n)
 
 
-def _mean(xs) -> float:
-    v = np.asarray([x for x in xs if x is not None and np.isfinite(x)], np.float64)
-    return float(v.mean()) if v.size else float("nan")
-
-
-def _median(xs) -> float:
-    """Median over trajectories (grounded slide: a few floating samples are NaN, not zero)."""
-    v = np.asarray([x for x in xs if x is not None and np.isfinite(x)], np.float64)
-    return float(np.median(v)) if v.size else float("nan")
-
-
 BODY_KEYS = ("bone_cv", "bone_max_dev", "slide_mps", "foot_skating", "penetration_frames", "penetration_max_m",
              "mesh_penetration_frames", "mesh_penetration_max_m", "floor_penetration_frames", "jerk", "seam_ratio")
 
@@ -574,20 +560,20 @@ def summarize_model(results: list[PairResult], ref_motions: list[np.ndarray], fp
         return {}
     d_final = [m["goal_dist_body_m"] for m in samples]
     succ = M.goal_success(np.asarray(d_final), (0.2, 0.5))
-    out = {k: _mean(m.get(k) for m in samples) for k in
+    out = {k: M.finite_mean(m.get(k) for m in samples) for k in
            BODY_KEYS + ("goal_dist_m", "goal_dist_body_m", "object_dist_m")}
-    out["slide_mps"] = _median(m.get("slide_mps") for m in samples)
+    out["slide_mps"] = M.finite_median(m.get("slide_mps") for m in samples)
     out["success_0.2"], out["success_0.5"] = succ[0.2], succ[0.5]
     out["traj_fail_rate"] = M.trajectory_fail_rate([np.asarray(m["_waypoints"]) for m in samples], 0.5)
     hits, frames = sum(m["_contact_hits"] for m in samples), sum(m["_contact_frames"] for m in samples)
     out["contact_rate"] = hits / frames if frames else float("nan")
-    out["apd_m"] = _mean(r.apd for r in results)
+    out["apd_m"] = M.finite_mean(r.apd for r in results)
     mine = [x for r in results for x in (r.kept_raw if raw else r.kept)]
     kab, kba = pskl_sets(mine, ref_motions, fps, cfg.pskl_frames)
     out["pskl_gen_ref"], out["pskl_ref_gen"] = kab, kba
-    out["completed"] = _mean(r.completed for r in results)
+    out["completed"] = M.finite_mean(r.completed for r in results)
     out["n_pairs"], out["n_samples"] = len(results), len(samples)
-    out["seconds_per_pair"] = _mean(r.wall_s for r in results)
+    out["seconds_per_pair"] = M.finite_mean(r.wall_s for r in results)
     return out
 
 
@@ -598,8 +584,8 @@ def summarize_reference(refs: list[ReferenceResult], fps: float, cfg: ProtocolCo
     motions = [x for r in refs for x in r.motions]
     if not seqs:
         return {}
-    out = {k: _mean(m.get(k) for m in seqs) for k in BODY_KEYS + ("object_dist_m",)}
-    out["slide_mps"] = _median(m.get("slide_mps") for m in seqs)
+    out = {k: M.finite_mean(m.get(k) for m in seqs) for k in BODY_KEYS + ("object_dist_m",)}
+    out["slide_mps"] = M.finite_median(m.get("slide_mps") for m in seqs)
     for k in ("goal_dist_m", "goal_dist_body_m", "success_0.2", "success_0.5", "traj_fail_rate", "apd_m",
               "completed", "seconds_per_pair"):
         out[k] = None

@@ -230,10 +230,7 @@ def body_figures(motion: Motion) -> dict:
         if joints is None:
             continue
         for s in range(motion.num_samples):
-            b = M.bone_consistency(joints[s], parents)
-            for k, v in (("bone_cv", b.cv_median), ("bone_max_dev", b.max_deviation),
-                         ("slide_mps", M.grounded_slide(joints[s], motion.fps)),
-                         ("foot_skating", M.foot_skating_ratio(joints[s], motion.fps))):
+            for k, v in M.body_metrics(joints[s], motion.fps, parents).items():
                 out.setdefault(tag + k, []).append(float(v))
     return out
 
