@@ -2,12 +2,13 @@
 
 Two pose representations (`WindowConfig.representation`):
 
-* ``absolute`` — the public TRUMANS code: D = 3J, joint j at channels 3j..3j+2, every joint in
-  the window frame. Pinning the pelvis moves one joint and leaves the body behind.
-* ``root`` (default) — the pelvis (joint 0) in the window frame at channels 0..2, every other
-  joint *relative to the pelvis* (same axes) at 3j..3j+2. The pelvis channels mean the same
-  in both, so goals and masks address them identically; but a pelvis the sampler moves now
-  carries the whole body with it.
+* ``absolute`` (default) — the public TRUMANS code: D = 3J, joint j at channels 3j..3j+2,
+  every joint in the window frame. Pinning the pelvis would move one joint and leave the body
+  behind, which is why goals are predicted rather than pinned (`MaskConfig.predict_goal`).
+* ``root`` — the pelvis (joint 0) in the window frame at channels 0..2, every other joint
+  *relative to the pelvis* (same axes) at 3j..3j+2. The pelvis channels mean the same in
+  both, so goals and masks address them identically; a pelvis the sampler moves carries the
+  whole body with it. Measured worse at goals and feet than ``absolute`` (docs/models.md).
 
 Optionally C *stance* channels follow the pose (`contact_joints`, default the two ankles and
 the two toes): +1 when the joint is planted — in contact by the dataset's label and moving
@@ -33,7 +34,7 @@ DEFAULT_CONTACT_JOINTS = ("left_ankle", "left_foot", "right_ankle", "right_foot"
 @dataclass(frozen=True)
 class Layout:
     num_joints: int
-    representation: str = "root"
+    representation: str = "absolute"
     contact_joints: tuple[int, ...] = ()          # joint index of each stance channel
 
     def __post_init__(self):

@@ -12,7 +12,7 @@ from motiongen.data.representation import Layout
 from motiongen.data.sources import DataConfig
 from motiongen.data.windows import WindowConfig
 from motiongen.diffusion import DiffusionConfig, GaussianDiffusion
-from motiongen.diffusion.masks import MaskConfig, loss_mask, predicts_goal, replace_mask, sample_known_mask
+from motiongen.diffusion.masks import MaskConfig, predicts_goal, replace_mask, sample_known_mask
 from motiongen.errors import ConfigError
 from motiongen.models import Condition, ModelConfig, build_model
 from motiongen.models.condition import drop_conditions
@@ -72,9 +72,10 @@ def known_mask_for_batch(cfg, shape, num_joints: int, device, generator) -> torc
     return sample_known_mask(B, L, num_joints, mask_config(cfg), generator, channels=D).to(device)
 
 
-def loss_mask_for_batch(cfg, known_mask: torch.Tensor) -> torch.Tensor:
-    """Entries the loss covers: goals too when the model predicts them (`mask.predict_goal`)."""
-    return loss_mask(known_mask, predicts_goal(mask_config(cfg), str(cfg.diffusion.prediction)))
+def goal_predicted(cfg) -> bool:
+    """Whether the model of this config predicts its goal entries (`mask.predict_goal` and x0
+    prediction): then the loss covers them and samplers keep the prediction there."""
+    return predicts_goal(mask_config(cfg), str(cfg.diffusion.prediction))
 
 
 def fixed_known_mask(shape, transition: int, goal: bool, device) -> torch.Tensor:
@@ -93,14 +94,15 @@ def sample_windows(model, diffusion, batch: dict, cfg, device, generator, steps:
     cond = Condition(scene=batch["scene"].to(device) if "scene" in batch else None, actions=batch["actions"].to(device))
     mask = fixed_known_mask(x0.shape, 2, True, device)
     model.eval()
-    replace = replace_mask(mask, predicts_goal(mask_config(cfg), str(cfg.diffusion.prediction)))
+    replace = replace_mask(mask, goal_predicted(cfg))
     return diffusion.sample(model, x0.shape, cond, known=x0, known_mask=mask, sampler="ddim",
                             steps=min(steps, diffusion.num_timesteps), generator=generator, replace_mask=replace)
 
 
 def _with_legacy_defaults(cfg):
-    """Checkpoints from before the root representation and goal prediction hold absolute joints
-    and pinned goals: missing keys mean the old behaviour, not today's defaults."""
+    """Checkpoints from before the representation key and goal prediction hold absolute joints
+    without stance channels and pinned goals: missing keys mean the old behaviour, not today's
+    defaults."""
     from omegaconf import open_dict
 
     with open_dict(cfg):
@@ -130,7 +132,7 @@ class LoadedModel:
         self.window = window_config(cfg)
         self.mask = mask_config(cfg)
         self.layout = Layout.for_window(self.window, self.joint_set)
-        self.predict_goal = predicts_goal(self.mask, str(cfg.diffusion.prediction))
+        self.predict_goal = goal_predicted(cfg)
         self.fps = float(state.get("fps") or 30.0)         # the training data's frame rate
         model, self.diffusion, _ = build_from_config(cfg, self.joint_set, self.action_names)
         try:

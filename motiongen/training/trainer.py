@@ -16,10 +16,11 @@ from torch.utils.data import DataLoader
 
 from motiongen.data.sources import open_dataset
 from motiongen.data.windows import NormStats, WindowDataset
+from motiongen.diffusion.masks import loss_mask
 from motiongen.errors import ConfigError, MotiongenError
 from motiongen.training import distributed as dd
 from motiongen.training.builders import (batch_condition, build_from_config, data_config, known_mask_for_batch,
-                                         loss_channel_weights, loss_mask_for_batch, window_config)
+                                         goal_predicted, loss_channel_weights, window_config)
 from motiongen.training.checkpoint import find_resume, load_checkpoint, save_checkpoint
 from motiongen.training.config import TrainConfig
 from motiongen.training.data_order import ResumableBatchSampler
@@ -187,6 +188,7 @@ def train(cfg: DictConfig, run_dir: Path) -> Path | None:
     # ---- loop ----------------------------------------------------------------------------
     autocast = torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp == "bf16")
     weights = loss_channel_weights(tc, train_set.layout.channels, device)
+    predict_goal = goal_predicted(cfg)
     it = iter(loader)
     bar = None
     if info.is_main and tc.progress:
@@ -206,7 +208,7 @@ def train(cfg: DictConfig, run_dir: Path) -> Path | None:
         noise = torch.randn(x0.shape, device=device, generator=noise_gen)
         with autocast:
             losses = diffusion.training_losses(net, x0, t, cond, known=x0, known_mask=known_mask, noise=noise,
-                                               channel_weights=weights, loss_mask=loss_mask_for_batch(cfg, known_mask))
+                                               channel_weights=weights, loss_mask=loss_mask(known_mask, predict_goal))
         loss = losses["loss"]
         opt.zero_grad(set_to_none=True)
         loss.backward()

@@ -5,8 +5,8 @@ from __future__ import annotations
 import torch
 from torch.utils.data import DataLoader, Subset
 
-from motiongen.training.builders import (batch_condition, known_mask_for_batch, loss_channel_weights,
-                                         loss_mask_for_batch)
+from motiongen.diffusion.masks import loss_mask
+from motiongen.training.builders import batch_condition, goal_predicted, known_mask_for_batch, loss_channel_weights
 
 
 @torch.no_grad()
@@ -17,6 +17,7 @@ def validation_loss(model, diffusion, val_set, cfg, tc, device, autocast) -> flo
     loader = DataLoader(Subset(val_set, idx), batch_size=tc.batch_size, num_workers=0)
     gen = torch.Generator(device=device).manual_seed(54321)
     model.eval()
+    predict_goal = goal_predicted(cfg)
     total, count = 0.0, 0
     for batch in loader:
         x0 = batch["motion"].to(device)
@@ -27,7 +28,7 @@ def validation_loss(model, diffusion, val_set, cfg, tc, device, autocast) -> flo
         with autocast:
             losses = diffusion.training_losses(model, x0, t, cond, known=x0, known_mask=mask, noise=noise,
                                                channel_weights=loss_channel_weights(tc, x0.shape[-1], device),
-                                               loss_mask=loss_mask_for_batch(cfg, mask))
+                                               loss_mask=loss_mask(mask, predict_goal))
         total += float(losses["loss"]) * x0.shape[0]
         count += x0.shape[0]
     return total / max(count, 1)
