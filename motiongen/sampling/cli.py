@@ -235,7 +235,8 @@ def body_figures(motion: Motion) -> dict:
     return out
 
 
-def summary_lines(motion: Motion, sampler: SamplerSettings) -> list[str]:
+def summary_lines(motion: Motion, sampler: SamplerSettings, figures: dict | None = None) -> list[str]:
+    """The printed summary; figures: `body_figures(motion)` when already computed."""
     S, T = motion.joints.shape[:2]
     lines = [f"motion: {S} sample(s) x {T} frames = {motion.duration:.1f} s at {motion.fps:g} fps, "
              f"{len(motion.episode_starts)} episodes, {sampler.sampler.upper()}-{sampler.steps}"
@@ -252,7 +253,7 @@ def summary_lines(motion: Motion, sampler: SamplerSettings) -> list[str]:
                          f"at {at.mean():.1f} s")
         else:
             lines.append(f"goal {g + 1} ({goal.xz[0]:.2f}, {goal.xz[1]:.2f}){what}: not reached")
-    f = body_figures(motion)
+    f = body_figures(motion) if figures is None else figures
     if f:
         lines.append("body: bone-length CV {} (network {}), largest bone deviation {} (network {}), "
                      "grounded-toe slide {} m/s (network {}), foot skating {} (network {})".format(
@@ -401,9 +402,10 @@ def run(cfg, default_out: Path) -> dict:
                     fit = fit_joints(motion.joints[s][:, :22], body_model)
                     print(f"body fit sample {s}: MPJPE {fit.mpjpe * 1000:.1f} mm", flush=True)
                 stage.add(save_amass_npz(stage.tmp(name), fit, motion.fps), name)
-        lines = summary_lines(motion, sampler)
+        figures = body_figures(motion)
+        lines = summary_lines(motion, sampler, figures)
         summary = {"frames": int(motion.joints.shape[1]), "fps": motion.fps, "duration_s": motion.duration,
-                   "body": body_figures(motion),
+                   "body": figures,
                    "num_samples": S, "episodes": int(len(motion.episode_starts)), "completed": motion.completed,
                    "arrival_error_m": np.where(np.isfinite(motion.arrival_error), motion.arrival_error, -1).tolist(),
                    "arrival_error_body_m": np.where(np.isfinite(motion.arrival_error_body),
