@@ -70,9 +70,10 @@ def check_hydra_overrides(argv: list[str] | None = None, config_name: str | None
     except SystemExit:
         return                      # a bad flag: Hydra's own usage message says it
     parser = OverridesParser.create()
+    parsed = []
     for override in args.overrides:
         try:
-            parser.parse_overrides([override])
+            parsed += parser.parse_overrides([override])
         except OverrideParseException as e:
             # Hydra's message: the reason, a caret line for lexer errors, a link to its docs.
             lines = [ln.strip() for ln in str(e).splitlines()]
@@ -81,18 +82,17 @@ def check_hydra_overrides(argv: list[str] | None = None, config_name: str | None
             print(f"error: malformed override {override!r}: {reason or 'not valid override syntax'}",
                   file=sys.stderr, flush=True)
             sys.exit(2)
-    if config_name is not None and config_dir is not None and not args.multirun:
-        _check_composes(parser, list(args.overrides), config_name, config_dir)
+    if config_name is not None and config_dir is not None and not args.multirun \
+            and not any(o.is_sweep_override() for o in parsed):
+        _check_composes(list(args.overrides), config_name, config_dir)
 
 
-def _check_composes(parser, overrides: list[str], config_name: str, config_dir) -> None:
+def _check_composes(overrides: list[str], config_name: str, config_dir) -> None:
     from pathlib import Path
 
     from hydra import compose, initialize_config_dir
     from hydra.errors import ConfigCompositionException, MissingConfigException
 
-    if any(o.is_sweep_override() for o in parser.parse_overrides(overrides)):
-        return
     try:
         with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base="1.3"):
             compose(config_name, overrides=overrides, return_hydra_config=True)
