@@ -77,3 +77,18 @@ def canonical_frame(joints):
     origin and yaw to 0. joints: (..., J, 3) for one frame."""
     yaw = facing_yaw(joints)
     return local_to_world(yaw, joints[..., PELVIS, :][..., [0, 2]])
+
+
+def up_rotation(up: str) -> np.ndarray:
+    """(3, 3) rotation taking the signed axis `up` ('+z', '-x', '+y', ...) onto +y by a 90 or
+    180 degree turn, exact (entries 0, ±1). z-up becomes (x, y, z) -> (x, z, -y)."""
+    from scipy.spatial.transform import Rotation
+
+    e = np.zeros(3)
+    e["xyz".index(up[1])] = 1.0 if up[0] == "+" else -1.0
+    target = np.array([0.0, 1.0, 0.0])
+    if np.allclose(e, target):
+        return np.eye(3)
+    if np.allclose(e, -target):
+        return np.diag([1.0, -1.0, -1.0])          # 180 degrees about x
+    return np.rint(Rotation.from_rotvec(np.cross(e, target) * np.pi / 2).as_matrix()) + 0.0

@@ -18,9 +18,9 @@ Arrays here are body joints in `motiongen.skeleton.BODY` order: (T, 22, 3).
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from motiongen.errors import DataError
+from motiongen.geometry import up_rotation
 from motiongen.skeleton import BODY_JOINT_NAMES, FOOT_JOINTS, HEAD, PELVIS
 
 # Candidate units, metres per file unit. CMU's ASF units are 1/0.45 inch.
@@ -52,19 +52,6 @@ def parse_up(value: str, path: str = "<memory>") -> str:
     if v not in _AXES:
         raise DataError(path, "up", f"expected x, y or z with an optional sign (e.g. z, -y), got {value!r}")
     return sign + v
-
-
-def up_rotation(up: str) -> np.ndarray:
-    """(3, 3) rotation taking the signed axis `up` ('+z', ...) onto +y by a 90/180 degree turn.
-    z-up files become (x, y, z) -> (x, z, -y)."""
-    e = np.zeros(3)
-    e[_AXES.index(up[1])] = 1.0 if up[0] == "+" else -1.0
-    target = np.array([0.0, 1.0, 0.0])
-    if np.allclose(e, target):
-        return np.eye(3)
-    if np.allclose(e, -target):
-        return np.diag([1.0, -1.0, -1.0])          # 180 degrees about x
-    return Rotation.from_rotvec(np.cross(e, target) * np.pi / 2).as_matrix()
 
 
 def _signed_axis(v: np.ndarray) -> str:

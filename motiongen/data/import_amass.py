@@ -33,6 +33,7 @@ from motiongen.data.bvh_detect import check_plausible
 from motiongen.data.format import SMPLX_FIELDS
 from motiongen.data.import_bvh import load_clips, write_clips
 from motiongen.errors import ConfigError, DataError
+from motiongen.geometry import up_rotation
 from motiongen.skeleton import FOOT_JOINTS, HEAD
 
 LAYOUTS = {165: "smplx", 156: "smplh"}      # poses width -> layout; the body is columns 0:66 in both
@@ -40,8 +41,7 @@ RATE_KEYS = ("mocap_framerate", "mocap_frame_rate")
 UPS = ("y", "z")
 NUM_BETAS = SMPLX_FIELDS["betas"]           # the dataset stores 10 shape coefficients
 FLOOR_PERCENTILE = 2.0                      # of the per-frame lowest foot joint: ignores a few glitches
-# z-up -> y-up: (x, y, z) -> (x, z, -y), -90 degrees about x.
-Z_TO_Y = Rotation.from_euler("x", -90, degrees=True)
+Z_TO_Y = Rotation.from_matrix(up_rotation("+z"))     # z-up -> y-up: (x, y, z) -> (x, z, -y)
 
 SPEC = {"inputs": (list, []), "out": (str, None), "body_model": (str, None), "up": (str, None),
         "scene": (str, None), "scene_id": (int, 0), "split": (str, "train"), "fps": (float, 30.0),

@@ -31,12 +31,9 @@ import trimesh
 from motiongen.data.occupancy import OccupancyGrid
 from motiongen.data.voxelize import VOXELIZE_VERSION, voxelize_mesh
 from motiongen.errors import DataError
-from motiongen.geometry import invert_rigid, local_to_world
+from motiongen.geometry import invert_rigid, local_to_world, up_rotation
 
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
-
-# z-up → y-up: rotate −90° about x, (x, y, z) → (x, z, −y).
-_Z_UP_TO_Y_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
 
 
 # ---------------------------------------------------------------------------------------
@@ -81,7 +78,9 @@ def load_scene_mesh(path: str | Path, up: str = "y") -> trimesh.Trimesh:
     mesh = meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)
     if up == "z":
         mesh = mesh.copy()
-        mesh.apply_transform(_Z_UP_TO_Y_UP)
+        z_to_y = np.eye(4)
+        z_to_y[:3, :3] = up_rotation("+z")                    # (x, y, z) -> (x, z, -y)
+        mesh.apply_transform(z_to_y)
     return mesh
 
 
