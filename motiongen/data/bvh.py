@@ -462,13 +462,19 @@ class ImportedMotion:
     unit_from: str = "given"  # "leg length" or "given"
 
 
+def resample_times(T: int, src_fps: float, dst_fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """(t_src (T,), t_dst (T',)) seconds: a clip's frame times and those of the same duration at
+    dst_fps (the last at or before the clip's end)."""
+    t_src = np.arange(T) / src_fps
+    return t_src, np.arange(int(np.floor(t_src[-1] * dst_fps + 1e-6)) + 1) / dst_fps
+
+
 def resample(positions: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
     """Cubic-spline resampling of (T, ...) positions from src_fps to dst_fps (same duration)."""
     T = positions.shape[0]
     if abs(src_fps - dst_fps) < 1e-3 * dst_fps or T < 2:
         return positions
-    t_src = np.arange(T) / src_fps
-    t_dst = np.arange(int(np.floor(t_src[-1] * dst_fps + 1e-6)) + 1) / dst_fps
+    t_src, t_dst = resample_times(T, src_fps, dst_fps)
     return CubicSpline(t_src, positions, axis=0)(t_dst)
 
 

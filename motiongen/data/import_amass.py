@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from motiongen.body.model import BodyModel, load_body_model
 from motiongen.cli import parse_key_values, user_errors_exit_2
+from motiongen.data.bvh import resample_times
 from motiongen.data.bvh_detect import check_plausible
 from motiongen.data.format import SMPLX_FIELDS
 from motiongen.data.import_bvh import load_clips, write_clips
@@ -158,13 +159,12 @@ def to_y_up(global_orient: np.ndarray, transl: np.ndarray, pelvis_rest: np.ndarr
 
 def resample_params(rotvecs: np.ndarray, transl: np.ndarray, src_fps: float, dst_fps: float):
     """Rotations (T, J, 3) axis-angle by Slerp and translations (T, 3) by a cubic spline, from
-    src_fps to dst_fps over the same duration (the grid of `bvh.resample`)."""
+    src_fps to dst_fps over the same duration (the grid of `bvh.resample`, `bvh.resample_times`)."""
     T = len(transl)
     if abs(src_fps - dst_fps) < 1e-3 * dst_fps or T < 2:
         return rotvecs, transl
-    t_src = np.arange(T) / src_fps
-    t_dst = np.arange(int(np.floor(t_src[-1] * dst_fps + 1e-6)) + 1) / dst_fps
-    t_dst = np.minimum(t_dst, t_src[-1])                               # guard the last sample
+    t_src, t_dst = resample_times(T, src_fps, dst_fps)
+    t_dst = np.minimum(t_dst, t_src[-1])                               # Slerp refuses times past the end
     rot = np.stack([Slerp(t_src, Rotation.from_rotvec(rotvecs[:, j]))(t_dst).as_rotvec()
                     for j in range(rotvecs.shape[1])], 1)                # (T', J, 3)
     return rot, CubicSpline(t_src, transl, axis=0)(t_dst)
