@@ -117,9 +117,9 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
     if k > loaded.mask.max_transition:
         warnings.warn(f"pinning {k} transition frames; the model was trained with at most {loaded.mask.max_transition}")
     new = L - k                                                                              # new frames per episode
-    source_fps = float(loop.source_fps if loop.source_fps is not None else getattr(loaded, "fps", 30.0))
+    source_fps = float(loop.source_fps if loop.source_fps is not None else loaded.fps)
     model_fps = source_fps / win.stride
-    predict_goal = bool(getattr(loaded, "predict_goal", False)) and not loop.pin_goal
+    predict_goal = loaded.predict_goal and not loop.pin_goal
     body = None                            # MotionBody, fitted to the first window
     if loop.project and body_model is None:
         from motiongen.body.model import load_body_model
