@@ -175,22 +175,3 @@ def test_video_fps_override_and_bad_style(motion, tmp_path):
     assert len(frames) == 4 and fps == pytest.approx(5.0)                           # frames 0, 6, 12, 18
     with pytest.raises(ValueError, match="style"):
         render_video(tmp_path / "x.mp4", joints, 30.0, style="mesh")
-
-
-def test_a_render_that_fails_half_way_leaves_the_earlier_video(motion, tmp_path, monkeypatch):
-    from motiongen.export import render_body
-
-    bm, body, joints = motion
-    path = render_video(tmp_path / "m.mp4", joints, 30.0, video_fps=5, bodies=[body], body_model=bm)
-    before = path.read_bytes()
-    calls = []
-
-    def fail_on_third(self, *a, **k):
-        calls.append(1)
-        if len(calls) == 3:
-            raise RuntimeError("disk full")
-
-    monkeypatch.setattr(render_body.BodyLayer, "draw", fail_on_third)
-    with pytest.raises(RuntimeError, match="disk full"):
-        render_video(path, joints, 30.0, bodies=[body], body_model=bm)
-    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["m.mp4"]

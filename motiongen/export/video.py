@@ -17,7 +17,6 @@ imageio-ffmpeg when it is available, otherwise as a gif.
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 from typing import Sequence
 
@@ -294,12 +293,7 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
         ok = (d > 0.2).all(1) & (np.abs(uv) < 4).all(axis=(1, 2))
         return uv[ok]
 
-    # Frames stream into a temporary file beside the target, renamed over it when complete: a
-    # render that fails half-way leaves an earlier video at `path` as it was.
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
-    writer = _open_writer(tmp, out_fps)
-    done = False
+    writer = _open_writer(path, out_fps)
     try:
         for t in frames_idx:
             p = joints[0, t, PELVIS]
@@ -339,13 +333,8 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
             if layer is not None:
                 layer.draw(frame, cam, *_panel_pixels(ax_cam, frame.shape[0]), t)
             writer.append_data(frame)
-        done = True
     finally:
         writer.close()
-        if done:
-            os.replace(tmp, path)
-        else:
-            tmp.unlink(missing_ok=True)
     return path
 
 
@@ -366,6 +355,7 @@ def _open_writer(path: Path, fps: float):
     """A streaming frame writer: frames go to the encoder as they are drawn, never all in memory."""
     import imageio.v2 as imageio
 
+    path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix.lower() == ".gif":
         # Frame duration in milliseconds for this writer (seconds gave 0 ms: frames as fast as possible).
         return imageio.get_writer(path, format="GIF", mode="I", duration=1000.0 / fps, loop=0)
