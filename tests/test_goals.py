@@ -7,8 +7,9 @@ import pytest
 
 from motiongen.data.occupancy import OccupancyGrid
 from motiongen.errors import ConfigError, DataError
-from motiongen.sampling.goals import (Goal, astar, check_actions, load_goals_file, parse_goals, place_subgoals,
-                                      plan_route, walkable_map)
+from motiongen.routing import plan_path, walkable_map
+from motiongen.sampling.goal_input import load_goals_file, parse_goals
+from motiongen.sampling.goals import Goal, check_actions, place_subgoals, plan_route
 
 
 def _room(wall=True):
@@ -29,10 +30,10 @@ def _dense_points(path, step=0.005):
     return np.concatenate([p.reshape(-1, 2) for p in pts])
 
 
-def test_astar_routes_around_wall_and_never_through_occupied_cells():
+def test_planner_routes_around_wall_and_never_through_occupied_cells():
     fmap = walkable_map(_room(), body_radius=0.2)
     start, goal = np.array([-1.0, -1.0]), np.array([-1.0, 1.0])
-    path = astar(fmap, start, goal)
+    path = plan_path(fmap, start, goal, 0.05)
     assert path is not None
     np.testing.assert_allclose(path[0], start)
     np.testing.assert_allclose(path[-1], goal)

@@ -26,7 +26,8 @@ import numpy as np
 
 from motiongen.errors import ConfigError
 from motiongen.eval import metrics as M
-from motiongen.sampling.goals import Goal, Route, plan_route, walkable_map
+from motiongen.routing import walkable_map
+from motiongen.sampling.goals import Goal, Route, plan_route
 from motiongen.skeleton import LEFT_HIP, PELVIS, RIGHT_HIP, joint_set_for
 from motiongen.spans import true_runs
 

@@ -1,11 +1,10 @@
-"""Sampling: goal routes (A*, subgoals) and the autoregressive episode loop."""
+"""Sampling: goal routes (shortest paths, subgoals) and the autoregressive episode loop."""
 
 from motiongen.sampling.autoregressive import Episode, LoopConfig, Motion, SamplerSettings, generate, model_reach
-from motiongen.sampling.goals import (Goal, Route, WalkableMap, astar, check_actions, load_goals_file,
-                                      parse_goals, place_subgoals, plan_route, walkable_map)
+from motiongen.sampling.goal_input import load_goals_file, parse_goals
+from motiongen.sampling.goals import Goal, Route, check_actions, place_subgoals, plan_route
 
 __all__ = [
     "Episode", "LoopConfig", "Motion", "SamplerSettings", "generate", "model_reach", "Goal", "Route",
-    "WalkableMap", "astar", "check_actions", "load_goals_file", "parse_goals", "place_subgoals", "plan_route",
-    "walkable_map",
+    "check_actions", "load_goals_file", "parse_goals", "place_subgoals", "plan_route",
 ]

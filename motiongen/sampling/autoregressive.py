@@ -49,7 +49,8 @@ import torch
 from motiongen.diffusion.masks import known_mask, replace_mask
 from motiongen.errors import ConfigError
 from motiongen.geometry import canonical_frame, invert_rigid, local_to_world, transform_points
-from motiongen.sampling.goals import Goal, Route, WalkableMap, check_actions, plan_route
+from motiongen.routing import WalkableMap
+from motiongen.sampling.goals import Goal, Route, check_actions, plan_route
 from motiongen.sampling.motion import Episode, LoopConfig, Motion, SamplerSettings
 from motiongen.sampling.interactions import hand_targets, merge_targets, seat_height, seat_shift
 from motiongen.sampling.scene_query import SceneQuery
@@ -97,7 +98,7 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
         goals = list(goals)
         check_actions(goals, names)
         if walkable is None and scene is not None and path == "astar":
-            from motiongen.sampling.goals import walkable_map
+            from motiongen.routing import walkable_map
 
             walkable = walkable_map(scene, body_radius)
         route = plan_route(start, goals, walkable, path, subgoal_spacing)

@@ -17,7 +17,9 @@ import torch
 
 from motiongen.errors import ConfigError, DataError
 from motiongen.sampling.autoregressive import LoopConfig, Motion, SamplerSettings, generate
-from motiongen.sampling.goals import Goal, WalkableMap, check_actions, load_goals_file, parse_goals, plan_route, walkable_map
+from motiongen.routing import WalkableMap, walkable_map
+from motiongen.sampling.goal_input import load_goals_file, parse_goals
+from motiongen.sampling.goals import Goal, check_actions, plan_route
 from motiongen.staging import StagedOutputs
 
 

@@ -14,7 +14,8 @@ from scipy.spatial.transform import Rotation, Slerp
 from motiongen.data.synthetic.body import Body, Controls, J, pose, rot_y, torso
 from motiongen.data.synthetic.gait import Feet, cycle_seconds, stance_feet, walk
 from motiongen.data.synthetic.labels import action_rows, contacts
-from motiongen.data.synthetic.paths import FloorMap, minjerk, path_trajectory, turn_trajectory, wrap
+from motiongen.data.synthetic.paths import minjerk, path_trajectory, plan_walk, random_free, turn_trajectory, wrap
+from motiongen.routing import WalkableMap
 from motiongen.data.synthetic.scenes import MAX_OBJECTS, Bed, Scene, Seat
 from motiongen.geometry import facing_yaw
 
@@ -32,7 +33,7 @@ def _lerp(a, b, w, tail: int):
 
 
 class Timeline:
-    def __init__(self, body: Body, scene: Scene, floor: FloorMap, rng: np.random.Generator, fps: float,
+    def __init__(self, body: Body, scene: Scene, floor: WalkableMap, rng: np.random.Generator, fps: float,
                  xz: np.ndarray, yaw: float):
         self.body, self.scene, self.floor, self.rng, self.fps = body, scene, floor, rng, fps
         self.xz, self.yaw, self.exit_xz = np.asarray(xz, float), float(yaw), np.asarray(xz, float)
@@ -132,7 +133,7 @@ class Timeline:
     def walk_to(self, goal: np.ndarray, final: np.ndarray | None = None) -> bool:
         """Walk to the free point `goal`, then on to `final` (just outside furniture) if given."""
         start = self.xz if self.floor.is_free(self.xz) else self.exit_xz
-        path = self.floor.plan(start, goal)
+        path = plan_walk(self.floor, start, goal)
         if path is None:
             return False
         if start is not self.xz:
@@ -328,12 +329,12 @@ class Timeline:
                 "object_poses": poses.astype(np.float32), "object_ids": ids}
 
 
-def make_sequence(scene: Scene, floor: FloorMap, rng: np.random.Generator, fps: float,
+def make_sequence(scene: Scene, floor: WalkableMap, rng: np.random.Generator, fps: float,
                   seconds: float) -> tuple[dict[str, np.ndarray], float]:
     """One scripted sequence of about `seconds` (at least 4 s): the arrays of `Timeline.finish`
     and the body height."""
     body = Body(float(rng.uniform(1.55, 1.90)))
-    start = floor.random_free(rng)
+    start = random_free(floor, rng)
     tl = Timeline(body, scene, floor, rng, fps, start, rng.uniform(-np.pi, np.pi))
     tl.idle(rng.uniform(0.8, 2.0))
     failures = 0
@@ -344,7 +345,7 @@ def make_sequence(scene: Scene, floor: FloorMap, rng: np.random.Generator, fps: 
                        ["pick"] * (2 if scene.items else 0)
         what = choices[int(rng.integers(len(choices)))]
         if what == "goto":
-            goal = floor.random_free(rng, tl.xz, 2.0)
+            goal = random_free(floor, rng, tl.xz, 2.0)
             ok = goal is not None and tl.walk_to(goal)
         elif what == "sit":
             ok = tl.sit(scene.seats[int(rng.integers(len(scene.seats)))])
