@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from motiongen.data.sources import DataConfig, open_dataset
-from motiongen.eval.protocol import SETTINGS, ProtocolConfig, SceneContext, make_pairs, reference_metrics
+from motiongen.eval.motion_scores import reference_metrics
+from motiongen.eval.pairs import SETTINGS, ProtocolConfig, make_pairs
+from motiongen.eval.scene_context import SceneContext
 from motiongen.eval.report import METRICS
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -175,7 +175,8 @@ def run(cfg, default_out: Path) -> dict:
     import torch
     from omegaconf import OmegaConf
 
-    from motiongen.eval.protocol import SETTINGS, ProtocolConfig, evaluate
+    from motiongen.eval.pairs import SETTINGS, ProtocolConfig
+    from motiongen.eval.protocol import evaluate
     from motiongen.sampling import SamplerSettings
 
     if not cfg.get("ckpt"):
