@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from motiongen.data.occupancy import OccupancyGrid
-from motiongen.eval.metrics import (SignedDistance, apd, contact_rate, floor_penetration, foot_skating_ratio,
+from motiongen.eval.metrics import (apd, contact_rate, floor_penetration, foot_skating_ratio,
                                     goal_distances, goal_success, mean_jerk, pskl, scene_penetration, seam_jump,
                                     trajectory_fail_rate)
 from motiongen.skeleton import FOOT_JOINTS, PELVIS
@@ -107,13 +107,20 @@ def box_grid(top=0.5):
     return OccupancyGrid.from_dense(occ, origin=[0, 0, 0], voxel_size=vs)
 
 
-def test_signed_distance_box():
-    sdf = SignedDistance(box_grid())
-    d = sdf(np.array([[1.0, 0.7, 1.0], [1.0, 0.4, 1.0], [1.0, 0.3, 0.6], [0.2, 0.3, 1.0]]))
-    np.testing.assert_allclose(d, [0.2, -0.1, -0.1, 0.3], atol=0.011)
-    # outside the grid: free, distance grows with the distance to the grid box
-    assert sdf(np.array([[1.0, 2.5, 1.0]]))[0] == pytest.approx(2.0, abs=0.02)
-    assert SignedDistance(box_grid(), floor_y=0.0)(np.array([[0.2, 0.05, 0.2]]))[0] == pytest.approx(0.05)
+def test_surface_distance_box():
+    grid = box_grid()
+    sdf = grid.surface_distance()
+    assert grid.surface_distance() is sdf                  # built once, kept with the grid
+    d = sdf(np.array([[1.0, 0.7, 1.0], [1.0, 0.4, 1.0], [1.0, 0.3, 0.6], [0.2, 0.3, 1.0], [1.0, 0.3, 0.5]]))
+    np.testing.assert_allclose(d, [0.2, -0.1, -0.1, 0.3, 0.0], atol=0.011)
+    # Off the grid: free, the true distance to the box (above it, and beside it at y = 0.25).
+    off = sdf(np.array([[1.0, 2.5, 1.0], [-1.5, 0.25, 1.0], [1.0, 0.25, 3.5]]))
+    np.testing.assert_allclose(off, [2.0, 2.0, 2.0], atol=0.02)
+    # The floor half-space: a point 5 cm up, far from the box, is 5 cm from a surface.
+    assert grid.surface_distance(floor_y=0.0)(np.array([[0.2, 0.05, 0.2]]))[0] == pytest.approx(0.05)
+    assert sdf.floor_y is None                             # the kept field is unchanged
+    empty = OccupancyGrid.from_dense(np.zeros((4, 4, 4), bool), [0, 0, 0], 0.1).surface_distance()
+    assert empty(np.zeros((1, 3)))[0] >= 100.0             # no surface at all: far
 
 
 def test_scene_penetration_depth_and_ratio():

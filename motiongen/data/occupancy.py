@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +25,7 @@ class OccupancyGrid:
     shape: tuple[int, int, int]  # (X, Y, Z) voxels
     origin: np.ndarray        # (3,) float64, world position of voxel (0,0,0)'s min corner
     voxel_size: float
+    _distance: object = field(default=None, init=False, repr=False, compare=False)
 
     @classmethod
     def from_dense(cls, occ: np.ndarray, origin, voxel_size: float) -> "OccupancyGrid":
@@ -57,6 +58,15 @@ class OccupancyGrid:
         byte = np.asarray(self.bits)[ijk[..., 0], ijk[..., 1], ijk[..., 2] >> 3]
         bit = (byte >> (7 - (ijk[..., 2] & 7))) & 1
         return np.where(inside, bit.astype(bool), outside)
+
+    def surface_distance(self, floor_y: float | None = None):
+        """The grid's signed distance field (`motiongen.data.distance.SurfaceDistance`), built on
+        first use and kept with the grid; `floor_y` adds the floor half-space y < floor_y."""
+        if self._distance is None:
+            from motiongen.data.distance import SurfaceDistance
+
+            self._distance = SurfaceDistance(self)
+        return self._distance if floor_y is None else self._distance.with_floor(floor_y)
 
     def save(self, stem: str | Path) -> None:
         """Write ``<stem>.occ.npy`` and ``<stem>.occ.json`` (each via a temp file and rename)."""

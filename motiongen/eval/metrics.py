@@ -12,7 +12,7 @@ from itertools import combinations
 from typing import Callable, Mapping, NamedTuple, Sequence
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt, map_coordinates, uniform_filter1d
+from scipy.ndimage import uniform_filter1d
 
 from motiongen.data.occupancy import OccupancyGrid
 from motiongen.skeleton import BODY_JOINT_NAMES, LEFT_FOOT_JOINTS, PELVIS, RIGHT_FOOT_JOINTS
@@ -177,43 +177,6 @@ def _is_ragged(x) -> bool:
 # Scene penetration and contact
 
 
-_FAR = 1e3
-
-
-class SignedDistance:
-    """Approximate signed distance (m) to the occupied surface of an occupancy grid:
-    positive in free space, negative inside. Computed once per grid with Euclidean distance
-    transforms of the dense occupancy (voxel centre to nearest voxel of the other kind, less
-    half a voxel for the surface between them), then sampled trilinearly, so it is accurate to
-    about a quarter voxel. Points outside the grid count as free (`occupied(outside=False)`)
-    and get the distance at the nearest grid cell plus their distance to the grid box.
-    `floor_y`: also treat the half-space y < floor_y as solid (TRUMANS grids start at the floor).
-    """
-
-    def __init__(self, grid: OccupancyGrid, floor_y: float | None = None):
-        occ = grid.dense()                                              # (X, Y, Z) bool
-        vs = grid.voxel_size
-        # An empty grid has no surface: 1 km stands in for "infinitely far".
-        free_d = (np.maximum(distance_transform_edt(~occ) - 0.5, 0.0) * vs if occ.any() and not occ.all()
-                  else np.full(occ.shape, 0.0 if occ.all() else _FAR))
-        in_d = np.maximum(distance_transform_edt(occ) - 0.5, 0.0) * vs if occ.any() else 0.0
-        self.field = np.where(occ, -in_d, free_d)                       # (X, Y, Z) metres
-        self.grid, self.floor_y = grid, floor_y
-
-    def __call__(self, points) -> np.ndarray:
-        """(...,) signed distances at points (..., 3)."""
-        p = np.asarray(points, np.float64)
-        flat = p.reshape(-1, 3)
-        coords = (flat - self.grid.origin) / self.grid.voxel_size - 0.5   # continuous voxel-centre index
-        d = map_coordinates(self.field, coords.T, order=1, mode="nearest")
-        lo, hi = self.grid.bounds
-        out_box = np.linalg.norm(np.maximum(lo - flat, 0) + np.maximum(flat - hi, 0), axis=-1)
-        d = np.where(out_box > 0, np.maximum(d, 0) + out_box, d)
-        if self.floor_y is not None:
-            d = np.minimum(d, flat[:, 1] - self.floor_y)
-        return d.reshape(p.shape[:-1])
-
-
 def scene_penetration(joints, grid: OccupancyGrid, vertices=None, sdf: Callable | None = None) -> dict[str, float]:
     """Penetration of the body into the scene's occupancy.
 
@@ -222,7 +185,7 @@ def scene_penetration(joints, grid: OccupancyGrid, vertices=None, sdf: Callable 
       frame_ratio: fraction of frames with any penetrating point;
       mean_depth:  mean depth (m) over penetrating points (0 when none);
       max_depth:   deepest penetration (m).
-    Depth = -signed distance from `SignedDistance(grid)` (pass `sdf` to reuse one per scene).
+    Depth = -signed distance from `grid.surface_distance()` (or the `sdf` given).
     Joints lie inside the body, so joint-only penetration under-reports contact with surfaces;
     vertices measure the skin. Cf. TRUMANS supplement Fig. A3 (per-vertex penetration stats).
     """
@@ -232,7 +195,7 @@ def scene_penetration(joints, grid: OccupancyGrid, vertices=None, sdf: Callable 
     inside = grid.occupied(pts, outside=False)                                # (T, P)
     if not inside.any():
         return {"frame_ratio": 0.0, "mean_depth": 0.0, "max_depth": 0.0}
-    sdf = sdf or SignedDistance(grid)
+    sdf = sdf or grid.surface_distance()
     depth = np.maximum(-sdf(pts[inside]), 0.0)
     return {"frame_ratio": float(inside.any(axis=1).mean()), "mean_depth": float(depth.mean()),
             "max_depth": float(depth.max())}
@@ -279,7 +242,7 @@ def contact_rate(joints, actions, action_names: Sequence[str], surface_distance:
     joints (T, J, 3) named by `joint_names` (default the 22 body joints; pass the 24-joint
     names to use index fingers); actions (T, A) bool labelled by `action_names`;
     surface_distance: a callable points (N, 3) -> (N,) distance to the nearest surface (e.g.
-    `SignedDistance(grid, floor_y=0)`), or an OccupancyGrid (wrapped in `SignedDistance`).
+    `grid.surface_distance(floor_y=0)`), or an OccupancyGrid (its `surface_distance()`).
     A frame labelled with action a is in contact when any joint in `expected_parts[a]` that
     the skeleton has lies within `thresh` of a surface after subtracting its `skin_offset`.
     Returns {action: rate} for each action in both `expected_parts` and `action_names` that
@@ -289,7 +252,7 @@ def contact_rate(joints, actions, action_names: Sequence[str], surface_distance:
     acts = np.asarray(actions, bool)
     if acts.shape != (j.shape[0], len(action_names)):
         raise ValueError(f"actions: expected shape {(j.shape[0], len(action_names))}, got {acts.shape}")
-    dist = SignedDistance(surface_distance) if isinstance(surface_distance, OccupancyGrid) else surface_distance
+    dist = surface_distance.surface_distance() if isinstance(surface_distance, OccupancyGrid) else surface_distance
     out, hits, total = {}, 0, 0
     for a, name in enumerate(action_names):
         parts = [p for p in expected_parts.get(name, ()) if p in joint_names]
@@ -407,6 +370,6 @@ def pskl(a, b, fps: float, length: int | None = None, eps: float = 1e-12) -> tup
 
 __all__ = ["TOE_JOINTS", "bone_lengths", "BoneConsistency", "bone_consistency", "grounded_slide", "body_metrics",
            "finite_mean", "finite_median", "foot_skating_frames", "foot_skating_ratio", "goal_distances", "goal_success",
-           "trajectory_fail_rate", "SignedDistance", "scene_penetration", "floor_penetration",
+           "trajectory_fail_rate", "scene_penetration", "floor_penetration",
            "DEFAULT_CONTACT_PARTS", "DEFAULT_SKIN_OFFSET", "contact_rate", "apd", "mean_jerk",
            "SeamJump", "seam_jump", "pskl"]

@@ -5,7 +5,6 @@ distances to the scene's surfaces and to objects."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 
@@ -38,9 +37,10 @@ class SceneContext:
         self.free_xz = self.fmap.origin + (free + 0.5) * self.fmap.cell                     # (N, 2) centres
         self._obj_cache: dict[int, tuple] = {}
 
-    @cached_property
-    def sdf(self) -> "SurfaceDistance":
-        return SurfaceDistance(self.grid)
+    @property
+    def sdf(self):
+        """The grid's signed distance field (built once per grid)."""
+        return self.grid.surface_distance()
 
     def surface(self, points) -> np.ndarray:
         """(N,) distance (m) of points (N, 3) to the nearest surface, the floor y = 0 included."""
@@ -142,38 +142,3 @@ class SceneContext:
         local = np.einsum("fji,fpj->fpi", R, pts - t[:, None])                              # R^T (p - t)
         d, _ = obj[1].query(local.reshape(-1, 3))
         return d.reshape(pts.shape[:2])
-
-
-class SurfaceDistance:
-    """Signed distance (m) to the occupied surface (+ free, - inside), like
-    `metrics.SignedDistance` but from KD-trees of the boundary voxels instead of two EDTs of
-    the whole grid: ~8x faster on a room grid (the EDTs were the protocol's largest fixed
-    cost per scene) and as accurate (to about half a voxel). Points off the grid are free."""
-
-    def __init__(self, grid):
-        import scipy.ndimage as ndi
-        from scipy.spatial import cKDTree
-
-        occ = grid.dense()                                                                   # (X, Y, Z) bool
-        self.grid, vs = grid, grid.voxel_size
-        centres = lambda m: grid.origin + (np.argwhere(m) + 0.5) * vs                      # noqa: E731
-        # Occupied voxels with a free 6-neighbour (the grid's outside is free) ...
-        surf = occ & ~ndi.binary_erosion(occ, border_value=0)
-        self._occ = cKDTree(centres(surf)) if surf.any() else None
-        # ... and free voxels with an occupied 6-neighbour, for depths inside.
-        fsurf = ~occ & ~ndi.binary_erosion(~occ, border_value=1)
-        self._free = cKDTree(centres(fsurf)) if fsurf.any() else None
-        self._half = 0.5 * vs
-
-    def __call__(self, points) -> np.ndarray:
-        """(...,) signed distances at points (..., 3)."""
-        p = np.asarray(points, np.float64)
-        flat = p.reshape(-1, 3)
-        inside = self.grid.occupied(flat, outside=False)                                     # (N,)
-        d = np.full(len(flat), 1e3)
-        if self._occ is not None and (~inside).any():
-            d[~inside] = np.maximum(self._occ.query(flat[~inside])[0] - self._half, 0.0)
-        if inside.any():
-            depth = self._free.query(flat[inside])[0] - self._half if self._free is not None else 1e3
-            d[inside] = -np.maximum(depth, 0.0)
-        return d.reshape(p.shape[:-1])
