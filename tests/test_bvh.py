@@ -19,7 +19,8 @@ from scipy.spatial.transform import Rotation
 from motiongen.body.model import forward_kinematics, load_body_model
 from motiongen.body.motion import sample_motion
 from motiongen.body.rotations import axis_angle_to_matrix
-from motiongen.data.bvh import BVH, bvh_to_body, import_bvh, load_bvh, parse_bvh, resample, write_bvh
+from motiongen.data.bvh import BVH, load_bvh, parse_bvh, write_bvh
+from motiongen.data.bvh_import import bvh_to_body, import_bvh, resample
 from motiongen.data.bvh_detect import detect_up
 from motiongen.data.format import MotionDataset
 from motiongen.errors import DataError

@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from motiongen.body.model import BodyModel, load_body_model
 from motiongen.cli import parse_key_values, user_errors_exit_2
-from motiongen.data.bvh import resample_times
+from motiongen.data.bvh_import import resample_times
 from motiongen.data.bvh_detect import check_plausible
 from motiongen.data.format import SMPLX_FIELDS
 from motiongen.data.import_bvh import load_clips, write_clips
@@ -159,7 +159,7 @@ def to_y_up(global_orient: np.ndarray, transl: np.ndarray, pelvis_rest: np.ndarr
 
 def resample_params(rotvecs: np.ndarray, transl: np.ndarray, src_fps: float, dst_fps: float):
     """Rotations (T, J, 3) axis-angle by Slerp and translations (T, 3) by a cubic spline, from
-    src_fps to dst_fps over the same duration (the grid of `bvh.resample`, `bvh.resample_times`)."""
+    src_fps to dst_fps over the same duration (the grid of `bvh_import.resample`, `resample_times`)."""
     T = len(transl)
     if abs(src_fps - dst_fps) < 1e-3 * dst_fps or T < 2:
         return rotvecs, transl

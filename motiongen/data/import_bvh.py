@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from motiongen.cli import parse_key_values, user_errors_exit_2
-from motiongen.data.bvh import UNITS, import_bvh, load_mapping
+from motiongen.data.bvh_detect import UNITS
+from motiongen.data.bvh_import import import_bvh, load_mapping
 from motiongen.data.bvh_detect import parse_up
 from motiongen.data.format import DatasetWriter
 from motiongen.data.occupancy import OccupancyGrid
