@@ -9,265 +9,19 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from motiongen.errors import ConfigError, DataError
-from motiongen.sampling.autoregressive import LoopConfig, Motion, SamplerSettings, generate
-from motiongen.routing import WalkableMap, walkable_map
+from motiongen.routing import walkable_map
+from motiongen.sampling.autoregressive import LoopConfig, SamplerSettings, generate
 from motiongen.sampling.goal_input import load_goals_file, parse_goals
-from motiongen.sampling.goals import Goal, check_actions, plan_route
+from motiongen.sampling.goals import check_actions, plan_route
+from motiongen.sampling.outputs import body_figures, motion_arrays, summary_lines
+from motiongen.sampling.scene_setup import default_route_goals, default_start, resolve_scene
 from motiongen.staging import StagedOutputs
-
-
-@dataclass
-class SceneInfo:
-    grid: object | None                     # OccupancyGrid or None (empty floor)
-    label: str
-    objects: list = field(default_factory=list)   # [(OccupancyGrid, pose (4, 4))]
-    synthetic: object | None = None         # motiongen.data.synthetic.scenes.Scene when known
-
-
-def _dataset_scene(ds, scene_id: int, label: str, with_objects: bool) -> SceneInfo:
-    if scene_id not in ds.scenes:
-        raise ConfigError(f"scene {label}: dataset {ds.root} has no scene {scene_id} "
-                          f"(scenes: {', '.join(str(s) for s in sorted(ds.scenes)[:20])}...)")
-    grid = ds.grid(scene_id)
-    objects = []
-    if with_objects and ds.object_ids is not None:
-        # Movable objects at their resting poses: the first frame of the scene's first sequence.
-        seq = next((s for s in ds.sequences if s.scene == scene_id), None)
-        if seq is not None:
-            from motiongen.data.voxelize import voxelize_mesh
-
-            ids = np.asarray(ds.object_ids[seq.start])
-            for slot, oid in enumerate(ids):
-                mesh = ds.object_mesh(int(oid)) if oid >= 0 else None
-                if mesh is not None:
-                    objects.append((voxelize_mesh(mesh, voxel_size=grid.voxel_size),
-                                    np.asarray(ds.object_poses[seq.start, slot], np.float64)))
-    return SceneInfo(grid, label, objects)
-
-
-def resolve_scene(spec, ckpt_config=None, voxel_size: float = 0.02, up: str = "y", objects: bool = True) -> SceneInfo:
-    """scene=None | 'none' | mesh file/folder | 'synthetic:ID' | 'dataset:PATH:ID'."""
-    if spec is None or str(spec).strip().lower() in ("", "none", "null", "empty"):
-        return SceneInfo(None, "empty floor")
-    spec = str(spec)
-    if spec.startswith("synthetic:"):
-        sid = _scene_id(spec.split(":", 1)[1], spec)
-        from motiongen.data.sources import DataConfig, open_dataset
-
-        data = ckpt_config.get("data") if ckpt_config is not None else None
-        if data is not None and data.get("source") == "synthetic":
-            dcfg = DataConfig(source="synthetic", size=str(data.get("size", "default")), seed=int(data.get("seed", 0)))
-        else:
-            dcfg = DataConfig(source="synthetic")
-        ds = open_dataset(dcfg, verbose=True)
-        info = _dataset_scene(ds, sid, spec, objects)
-        info.synthetic = _synthetic_layout(sid, dcfg.seed, info.grid)
-        return info
-    if spec.startswith("dataset:"):
-        rest = spec[len("dataset:"):]
-        root, _, sid = rest.rpartition(":")
-        if not root:
-            raise ConfigError(f"scene={spec!r}: expected dataset:PATH:ID")
-        from motiongen.data.format import MotionDataset
-
-        return _dataset_scene(MotionDataset.open(root), _scene_id(sid, spec), spec, objects)
-    from motiongen.data.scene import load_scene_grid
-
-    return SceneInfo(load_scene_grid(spec, voxel_size=voxel_size, up=up), spec)
-
-
-def _scene_id(s: str, spec: str) -> int:
-    try:
-        return int(s)
-    except ValueError:
-        raise ConfigError(f"scene={spec!r}: scene id must be an integer, got {s!r}") from None
-
-
-def _synthetic_layout(scene_id: int, seed: int, grid):
-    """The generator's layout of a synthetic scene (seats, beds), rebuilt from its seed; None if
-    it does not reproduce the stored grid (another generator version)."""
-    try:
-        from motiongen.data.synthetic.scenes import make_scene
-
-        scene = make_scene(scene_id, np.random.default_rng([seed, scene_id]))
-        g = scene.grid()
-        if tuple(g.shape) == tuple(grid.shape) and np.array_equal(np.asarray(g.bits), np.asarray(grid.bits)):
-            return scene
-    except Exception:  # the layout is a nicety for the demo route; the grid is what matters
-        pass
-    return None
-
-
-def default_route_goals(scene: SceneInfo, fmap: WalkableMap | None, action_names, rng: np.random.Generator):
-    """(start (2,), goals) for a scene when the user gives none: in a synthetic scene, walk to
-    a chair and sit on it (if the vocabulary has 'sit'), then on to a far free point; otherwise
-    a tour of free points far apart. On an empty floor: a 3 m walk with a turn."""
-    if fmap is None:
-        return np.zeros(2), [Goal([0.0, 2.0]), Goal([1.5, 3.0])]
-    import scipy.ndimage as ndi
-
-    # Components of the coarse map A* plans on (narrow gaps may be open only at 2 cm).
-    cfree, corigin, ccell = fmap.coarse(0.05)
-    labels, n = ndi.label(cfree)
-    if n == 0:
-        raise ConfigError(f"scene {scene.label} has no walkable floor for body_radius={fmap.body_radius} m")
-    biggest = 1 + int(np.argmax(ndi.sum(np.ones_like(labels), labels, index=np.arange(1, n + 1))))
-    cells = np.argwhere(labels == biggest)
-    pts = corigin + (cells + 0.5) * ccell                                                    # (N, 2)
-    centre = pts.mean(0)
-    start = pts[np.argmin(np.linalg.norm(pts - centre, axis=-1))]
-    chosen = [start]
-    goals: list[Goal] = []
-
-    def tour(k: int) -> list[Goal]:
-        # Farthest-point tour over the walkable component, 0.3 m back from its edge.
-        out = []
-        for _ in range(k):
-            d = np.min(np.stack([np.linalg.norm(pts - c, axis=-1) for c in chosen]), axis=0)
-            p = pts[int(np.argmax(d))]
-            v = centre - p
-            p2 = p + 0.3 * v / max(np.linalg.norm(v), 1e-9)
-            p = p2 if fmap.is_free(p2) else p
-            out.append(Goal(p))
-            chosen.append(p)
-        return out
-
-    lower = {a.lower(): a for a in action_names}
-    if scene.synthetic is not None and scene.synthetic.seats and "sit" in lower:
-        seats = list(scene.synthetic.seats)
-        for i in rng.permutation(len(seats)):
-            seat = seats[int(i)]
-            trial = [Goal(np.asarray(seat.surface, np.float64)[[0, 2]], lower["sit"], 3.0)]
-            stand = np.asarray(seat.stand_xz, np.float64)
-            if fmap.is_free(stand):
-                trial.insert(0, Goal(stand))
-            try:
-                plan_route(start, [Goal(tour(1)[0].xz)] + trial, fmap)
-            except ConfigError:
-                chosen.pop()
-                continue
-            goals = [Goal(chosen[-1])] + trial
-            break
-    goals += tour(3 - min(len(goals), 2) if goals else 3)
-    try:
-        plan_route(start, goals, fmap)
-    except ConfigError:
-        chosen[:] = [start]
-        goals = tour(3)
-    return start, goals
-
-
-def _default_start(fmap: WalkableMap | None, first_goal: np.ndarray) -> np.ndarray:
-    if fmap is None:
-        return np.zeros(2)
-    (x0, z0), (x1, z1) = fmap.bounds
-    p = fmap.nearest_free(np.array([(x0 + x1) / 2, (z0 + z1) / 2]))
-    if p is None:
-        raise ConfigError("the scene has no walkable floor to start from")
-    return p
-
-
-# ---------------------------------------------------------------------------------------
-# Outputs
-
-
-def motion_arrays(motion: Motion, extra: dict | None = None) -> dict:
-    """The motion.npz payload (no pickled objects: strings as unicode arrays)."""
-    r = motion.route
-    goals = np.stack([g.xz for g in r.goals]) if r.goals else np.zeros((0, 2))
-    d = {
-        "joints": motion.joints.astype(np.float32),                                      # (S, T, J, 3)
-        "fps": np.float64(motion.fps),
-        "joint_names": np.array(motion.joint_names),
-        "model_joints": motion.model_joints.astype(np.float32),                          # (S, Tm, J, 3)
-        "model_fps": np.float64(motion.model_fps),
-        "start": np.asarray(r.start, np.float64),
-        "goals": goals.astype(np.float64),                                                # (G, 2) x, z
-        "goal_actions": np.array([g.action or "" for g in r.goals]),
-        "goal_durations": np.array([g.duration for g in r.goals], np.float64),
-        "path": r.path.astype(np.float64),                                                # (N, 2)
-        "path_mode": np.array(r.mode),
-        "subgoals": r.subgoals.astype(np.float64),                                        # (K, 2)
-        "subgoal_goal": r.subgoal_leg.astype(np.int64),
-        "actions": motion.actions.astype(np.int16),                                       # (S, T), -1 = none
-        "action_names": np.array(motion.action_names),
-        "episode_starts": motion.episode_starts.astype(np.int64),                        # (E,) output frames
-        "episode_kinds": np.array(motion.episode_kinds),
-        "arrival_frames": motion.arrival_frame.astype(np.int64),                         # (S, G)
-        "arrival_error": motion.arrival_error.astype(np.float64),
-        "arrival_error_body": motion.arrival_error_body.astype(np.float64),
-        "finish_frame": motion.finish_frame.astype(np.int64),
-        "completed": np.bool_(motion.completed),
-        "wall_time": np.float64(motion.wall_time),
-    }
-    if motion.joints_raw is not None:
-        d["joints_raw"] = motion.joints_raw.astype(np.float32)                           # (S, T, J, 3) network's own
-    if motion.planted is not None:
-        d["planted"] = motion.planted                                                     # (S, T, C) bool
-        d["contact_joints"] = np.array(motion.contact_joints)
-    if motion.bodies is not None:
-        d["betas"] = np.stack([b.betas for b in motion.bodies]).astype(np.float32)       # (S, nβ) one body each
-    for k, v in (extra or {}).items():
-        d[k] = np.array(v)
-    return d
-
-
-def body_figures(motion: Motion) -> dict:
-    """Per sample, what the motion is as a body (docs/metrics.md): bone-length CV and largest
-    deviation, grounded-toe median slide speed, foot skating; for the output and for the
-    network's own joints. Lists of S values."""
-    from motiongen.eval import metrics as M
-    from motiongen.skeleton import joint_set_for
-
-    parents = joint_set_for(motion.joint_names).parents
-    out: dict[str, list] = {}
-    for tag, joints in (("", motion.joints), ("network_", motion.joints_raw)):
-        if joints is None:
-            continue
-        for s in range(motion.num_samples):
-            for k, v in M.body_metrics(joints[s], motion.fps, parents).items():
-                out.setdefault(tag + k, []).append(float(v))
-    return out
-
-
-def summary_lines(motion: Motion, sampler: SamplerSettings, figures: dict | None = None) -> list[str]:
-    """The printed summary; figures: `body_figures(motion)` when already computed."""
-    S, T = motion.joints.shape[:2]
-    lines = [f"motion: {S} sample(s) x {T} frames = {motion.duration:.1f} s at {motion.fps:g} fps, "
-             f"{len(motion.episode_starts)} episodes, {sampler.sampler.upper()}-{sampler.steps}"
-             + (f", guidance {sampler.guidance_scale:g}" if sampler.guidance_scale != 1 else "")]
-    for g, goal in enumerate(motion.route.goals):
-        errs = motion.arrival_error[:, g]
-        body = motion.arrival_error_body[:, g]
-        reached = np.isfinite(errs)
-        what = f" then {goal.action} {goal.duration:g} s" if goal.action else ""
-        if reached.any():
-            at = motion.arrival_frame[reached, g] / motion.fps
-            lines.append(f"goal {g + 1} ({goal.xz[0]:.2f}, {goal.xz[1]:.2f}){what}: reached by {reached.sum()}/{S}, "
-                         f"pelvis error {np.nanmean(errs):.3f} m (hips {np.nanmean(body):.3f} m), "
-                         f"at {at.mean():.1f} s")
-        else:
-            lines.append(f"goal {g + 1} ({goal.xz[0]:.2f}, {goal.xz[1]:.2f}){what}: not reached")
-    f = body_figures(motion) if figures is None else figures
-    if f:
-        lines.append("body: bone-length CV {} (network {}), largest bone deviation {} (network {}), "
-                     "grounded-toe slide {} m/s (network {}), foot skating {} (network {})".format(
-                         *[", ".join(f"{v:.3f}" for v in f.get(tag + k, [])) or "n/a"
-                           for k in ("bone_cv", "bone_max_dev", "slide_mps", "foot_skating")
-                           for tag in ("", "network_")]))
-    lines.append(f"wall time {motion.wall_time:.1f} s, real-time factor {motion.real_time_factor:.2f} "
-                 f"({S} x {motion.duration:.1f} s of motion / {motion.wall_time:.1f} s)")
-    return lines
-
-
-# ---------------------------------------------------------------------------------------
 
 
 def _bool(cfg, key, default=False) -> bool:
@@ -330,7 +84,7 @@ def run(cfg, default_out: Path) -> dict:
             raise ConfigError("no goals given: use goals=[[x,z],...] or goals_file=PATH")
     check_actions(goals, loaded.action_names)
     if start is None:
-        start = _default_start(fmap, goals[0].xz)
+        start = default_start(fmap, goals[0].xz)
     route = plan_route(start, goals, fmap if str(cfg.path) == "astar" else None, str(cfg.path),
                        float(cfg.subgoal_spacing))
     if str(cfg.path) == "straight" and fmap is not None:
