@@ -11,9 +11,12 @@ import trimesh
 
 from motiongen.data import scene as scene_mod
 from motiongen.data.occupancy import OccupancyGrid
-from motiongen.data.scene import (DynamicObjects, GridBank, LocalGridSpec, TorchOccupancy, floor_map,
-                                  frames_from_pose, load_scene_grid, load_scene_mesh, local_occupancy,
-                                  local_occupancy_at, local_occupancy_np)
+from motiongen.data.local_occupancy import (DynamicObjects, GridBank, LocalGridSpec, TorchOccupancy,
+                                            frames_from_pose, local_occupancy, local_occupancy_at,
+                                            local_occupancy_np)
+from motiongen.data.scene import load_scene_grid, load_scene_mesh
+from motiongen.routing import walkable_map
+from motiongen.routing.walkable import open_floor
 from motiongen.data.voxelize import voxelize_mesh
 from motiongen.errors import DataError
 
@@ -318,18 +321,18 @@ def test_dynamic_object_follows_its_pose():
 # Floor map
 
 
-def test_floor_map_blocks_furniture_not_floor_or_high_shelves():
+def test_open_floor_blocks_furniture_not_floor_or_high_shelves():
     parts = [trimesh.Trimesh([[0, 0, 0], [2, 0, 0], [2, 0, 2], [0, 0, 2]], [[0, 2, 1], [0, 3, 2]]),   # floor
              box([0.5, 0, 0.5], [0.9, 0.7, 0.9]),                                                  # table
              box([1.2, 1.8, 1.2], [1.8, 1.9, 1.8])]                                                # high shelf
     grid = voxelize_mesh(trimesh.util.concatenate(parts), 0.05)
-    free, origin, cell = floor_map(grid)
+    free, origin, cell = open_floor(grid)
     assert free.shape == (grid.shape[0], grid.shape[2]) and cell == 0.05
 
     def at(x, z, f=free):
         return f[int((x - origin[0]) / cell), int((z - origin[1]) / cell)]
 
     assert not at(0.7, 0.7) and at(0.3, 0.3) and at(1.5, 1.5)
-    free_c, _, _ = floor_map(grid, clearance=0.3)
+    free_c = walkable_map(grid, body_radius=0.3).free                                  # 0.3 m clearance
     assert not free_c[int((0.3 - origin[0]) / cell), int((0.7 - origin[1]) / cell)]
     assert at(1.5, 1.5, free_c)

@@ -82,7 +82,7 @@ def test_local_scene_matches_brute_force(tmp_path):
 
 def test_obstacle_appears_in_front(tmp_path):
     """A window whose goal stands 0.3 m in front of (facing) the obstacle sees it in local +z."""
-    from motiongen.data.scene import local_occupancy_np
+    from motiongen.data.local_occupancy import local_occupancy_np
     from motiongen.geometry import local_to_world
     ds = _ds(tmp_path)
     wd = WindowDataset(ds, "train", WindowConfig())

@@ -146,7 +146,7 @@ class WindowDataset(Dataset):
                               f"{self.layout.channels}")
         self.stance = dataset_stance(ds, self.layout, cfg.stance_speed)
         self._offsets = cfg.stride * np.arange(cfg.length)
-        from motiongen.data.scene import LocalGridSpec
+        from motiongen.data.local_occupancy import LocalGridSpec
         self.spec = LocalGridSpec(tuple(cfg.grid_res), (cfg.grid_lo[0], cfg.grid_hi[0]),
                                   (cfg.grid_lo[1], cfg.grid_hi[1]), (cfg.grid_lo[2], cfg.grid_hi[2]))
         self._object_grids: dict[int, object] = {}                                  # object id -> grid (per worker)
@@ -176,7 +176,7 @@ class WindowDataset(Dataset):
     def _local_scene(self, frames: np.ndarray, local: np.ndarray, T: np.ndarray) -> np.ndarray:
         """(Hy, Hx, Hz) float32 occupancy around the goal pelvis, axes aligned with the window
         frame, with the objects present at the goal frame added. Height counts from the floor."""
-        from motiongen.data.scene import local_occupancy_np
+        from motiongen.data.local_occupancy import local_occupancy_np
         goal = local[-1, PELVIS]
         at_goal = T.copy()
         at_goal[:3, 3] = T[:3, :3] @ np.array([goal[0], 0.0, goal[2]]) + T[:3, 3]        # goal (x, 0, z) in world

@@ -85,13 +85,28 @@ class WalkableMap:
         return self._coarse[max(1, int(round(cell / self.cell)))][1]
 
 
+
+def open_floor(grid, body_height: tuple[float, float] = (0.1, 1.7),
+               floor_y: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:
+    """The ground cells of an OccupancyGrid a body fits over: open (X, Z) bool, origin_xz (2,)
+    (min corner of cell (0, 0)), cell size. A cell is open when no voxel whose centre lies
+    between floor_y + body_height[0] and floor_y + body_height[1] is occupied; heights the grid
+    does not cover count as open."""
+    lo, hi = floor_y + body_height[0], floor_y + body_height[1]
+    centres_y = grid.origin[1] + (np.arange(grid.shape[1]) + 0.5) * grid.voxel_size      # (Y,)
+    rows = np.flatnonzero((centres_y >= lo) & (centres_y <= hi))
+    blocked = np.zeros((grid.shape[0], grid.shape[2]), bool)                              # (X, Z)
+    bits = np.asarray(grid.bits)
+    for j in rows:  # one height slice at a time: never unpacks the whole grid
+        blocked |= np.unpackbits(bits[:, j, :], axis=1, count=grid.shape[2], bitorder="big").astype(bool)
+    return ~blocked, grid.origin[[0, 2]].copy(), float(grid.voxel_size)
+
+
 def walkable_map(grid, body_radius: float = 0.25, body_height: tuple[float, float] = (0.1, 1.7),
                  floor_y: float = 0.0) -> WalkableMap:
     """The walkable map of an OccupancyGrid: free where nothing occupies the body's height band,
     and (for `free`) farther than `body_radius` from anything that does."""
-    from motiongen.data.scene import floor_map
-
-    open_, origin, cell = floor_map(grid, tuple(body_height), floor_y, clearance=0.0)
+    open_, origin, cell = open_floor(grid, tuple(body_height), floor_y)
     if body_radius > 0:
         # Distance transform instead of a disk dilation: O(cells) whatever the radius.
         dist = ndi.distance_transform_edt(open_) * cell                                      # to nearest blocked cell

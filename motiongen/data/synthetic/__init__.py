@@ -35,13 +35,13 @@ SIZES: dict[str, dict] = {
 def _scene_job(args: tuple[int, int, int, tuple[float, float]]) -> dict:
     """Build one scene and its sequences (runs in a worker process)."""
     from motiongen.data.synthetic.motion import make_sequence
-    from motiongen.data.synthetic.paths import floor_map
+    from motiongen.data.synthetic.paths import walkable_room
     from motiongen.data.synthetic.scenes import make_scene
 
     scene_id, seed, quota, seconds = args
     rng = np.random.default_rng([seed, scene_id])  # independent of worker scheduling
     scene = make_scene(scene_id, rng)
-    floor = floor_map(scene.boxes, scene.size)
+    floor = walkable_room(scene.boxes, scene.size)
     seqs, frames = [], 0
     while frames < quota:
         arrays, height = make_sequence(scene, floor, rng, FPS, rng.uniform(*seconds))

@@ -19,7 +19,7 @@ def minjerk(u):
     return u ** 3 * (10 - 15 * u + 6 * u ** 2)
 
 
-def floor_map(boxes: np.ndarray, size: tuple[float, float]) -> WalkableMap:
+def walkable_room(boxes: np.ndarray, size: tuple[float, float]) -> WalkableMap:
     """The room's walkable floor for the pelvis (largest connected region only)."""
     return walkable_from_boxes(boxes, size, CELL, BODY_RADIUS)
 
