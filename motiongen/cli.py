@@ -6,11 +6,14 @@ import contextlib
 import functools
 import io
 import sys
+from pathlib import Path
 from typing import Callable, TypeVar
 
 from motiongen.errors import ConfigError, MotiongenError
 
 F = TypeVar("F", bound=Callable)
+
+CONFIG_DIR = Path(__file__).resolve().parent / "configs"     # train / sample / evaluate .yaml
 
 
 def _register_resolvers() -> None:
@@ -54,7 +57,7 @@ def check_hydra_overrides(argv: list[str] | None = None, config_name: str | None
     argv with Hydra's own argument parser (so flags such as `--cfg job` or `-m` are left
     alone) and parses each override with Hydra's own grammar.
 
-    With `config_name` and `config_dir` (the script's configs/), the overrides are also composed
+    With `config_name` and `config_dir` (motiongen/configs), the overrides are also composed
     against the config once (about a tenth of a second), so an unknown key or a missing option of
     a config group is one line and exit 2 too, instead of Hydra's message and exit 1. Sweeps
     (`-m`, `a=1,2`) are left to Hydra.
@@ -112,40 +115,60 @@ def _check_composes(overrides: list[str], config_name: str, config_dir) -> None:
         sys.exit(2)
 
 
-_TRUE, _FALSE = ("true", "1", "yes", "on"), ("false", "0", "no", "off")
+# The small tools parse `key=value` arguments with Hydra's own override grammar and check each
+# value with OmegaConf's typed nodes, as train.py / sample.py / evaluate.py do through Hydra, so
+# quoting, lists, `+key` and type errors behave the same at every entry point.
+_KIND_WORDS = {int: "an integer", float: "a number", bool: "true or false", list: "a list [a,b,...]", str: "a value"}
 
 
-def _convert(key: str, value: str, kind):
-    if kind is bool:
-        v = value.strip().lower()
-        if v not in _TRUE + _FALSE:
-            raise ConfigError(f"{key}={value!r}: expected true or false")
-        return v in _TRUE
+def _typed(kind, value):
+    """value checked and converted as OmegaConf does for a config field of this type."""
+    from omegaconf import BooleanNode, FloatNode, IntegerNode, StringNode
+
+    if value is None:
+        return None
     if kind is list:
-        v = value.strip()
-        if v.startswith("[") and v.endswith("]"):
-            v = v[1:-1]
-        return [s.strip().strip("'\"") for s in v.split(",") if s.strip()]
-    if kind in (int, float):
-        try:
-            return kind(value)
-        except ValueError:
-            raise ConfigError(f"{key}={value!r}: expected {'an integer' if kind is int else 'a number'}") from None
-    if not value:
-        raise ConfigError(f"{key}= is empty: expected a value")
-    return value
+        if not isinstance(value, list):
+            raise ValueError(value)
+        return [str(v) for v in value]
+    node = {int: IntegerNode, float: FloatNode, bool: BooleanNode, str: StringNode}[kind]
+    return node(value=value)._value()
 
 
-def parse_key_values(argv: list[str], spec: dict[str, tuple[type, object]], required: tuple[str, ...] = (),
-                     usage: str = "") -> dict:
+def tool_help(spec: dict, usage: str = "", doc: str = "", required: tuple[str, ...] = ()) -> str:
+    """The `--help` text of a small tool: what it does, its usage and every key with its type and
+    default."""
+    lines = [doc.strip(), ""] if doc.strip() else []
+    if usage:
+        lines += [f"usage: {usage}", ""]
+    lines.append("keys (key=value; Hydra override syntax: lists [a,b], quote values with spaces):")
+    width = max(len(k) for k in spec) if spec else 0
+    for key, (kind, default, *rest) in spec.items():
+        shown = "(required)" if key in required else f"default: {'null' if default is None else default}"
+        lines.append(f"  {key:<{width}}  {kind.__name__:<5}  {shown}" + (f"  {rest[0]}" if rest else ""))
+    return "\n".join(lines)
+
+
+def parse_key_values(argv: list[str], spec: dict[str, tuple], required: tuple[str, ...] = (),
+                     usage: str = "", doc: str = "") -> dict:
     """Parse ``key=value`` arguments for the small (non-Hydra) tools.
 
-    spec maps each key to (type, default) with type one of str, int, float, bool, list
-    (``[a,b]`` or ``a,b``); a leading ``+`` on a key is accepted, as Hydra users type it.
-    Unknown keys, bad values and missing required keys raise ConfigError (exit 2 in CLIs).
+    spec maps each key to (type, default) or (type, default, help) with type one of str, int,
+    float, bool, list (of strings: ``[a,b]``; a bare ``a`` or ``a,b`` is read as a list too).
+    Values use Hydra's override grammar (``null``, quoting, ``+key``) and are checked against the
+    types as OmegaConf does for the Hydra scripts. ``--help`` / ``-h`` prints `tool_help` and
+    exits 0. Unknown keys, bad values and missing required keys raise ConfigError (exit 2 in CLIs).
     """
-    out = {k: d for k, (_, d) in spec.items()}
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    if any(a in ("--help", "-h") for a in argv):
+        print(tool_help(spec, usage, doc, required))
+        sys.exit(0)
     hint = f" (usage: {usage})" if usage else f" (keys: {', '.join(spec)})"
+    out = {k: (list(d) if isinstance(d, list) else d) for k, (_, d, *_) in spec.items()}
+    parser = OverridesParser.create()
     for arg in argv:
         key, eq, value = arg.partition("=")
         key = key.lstrip("+")
@@ -153,7 +176,25 @@ def parse_key_values(argv: list[str], spec: dict[str, tuple[type, object]], requ
             raise ConfigError(f"argument {arg!r}: expected key=value{hint}")
         if key not in spec:
             raise ConfigError(f"unknown key {key!r}; expected one of {', '.join(spec)}")
-        out[key] = _convert(key, value, spec[key][0])
+        kind = spec[key][0]
+        if kind is list and not value.strip().startswith("["):
+            value = f"[{value}]"                        # inputs=a.bvh, inputs=a.bvh,b.bvh
+        try:
+            override = parser.parse_override(f"{key}={value}")
+        except HydraException as e:
+            why = str(e).splitlines()[0] if str(e) else "cannot parse"
+            raise ConfigError(f"{key}={value!r}: {why}") from None
+        if override.is_sweep_override():
+            raise ConfigError(f"{key}={value!r}: expected one value, not a sweep")
+        parsed = override.value()
+        if kind is str and isinstance(parsed, (bool, int, float)):
+            parsed = value.strip()                       # out=007, name=1e3: the text as typed
+        if parsed == "" and kind is not list:
+            raise ConfigError(f"{key}= is empty: expected {_KIND_WORDS[kind]}")
+        try:
+            out[key] = _typed(kind, parsed)
+        except (OmegaConfBaseException, ValueError):
+            raise ConfigError(f"{key}={value!r}: expected {_KIND_WORDS[kind]}") from None
     for key in required:
         if out.get(key) in (None, "", []):
             raise ConfigError(f"missing {key}=...{hint}")

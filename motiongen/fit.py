@@ -1,9 +1,9 @@
 """Fit SMPL-X body parameters to joint trajectories.
 
-    python -m motiongen.fit input=motion.npz out=DIR [body.model_path=SMPLX_NEUTRAL.npz]
+    motiongen fit input=motion.npz out=DIR [body.model_path=SMPLX_NEUTRAL.npz]
         [mlp=auto|none|PATH] [steps=40] [mesh=auto|true|false] [mesh_format=obj|glb]
         [mesh_max_frames=60] [fps=30] [device=cpu]
-    python -m motiongen.fit input=DATASET_DIR seq=NAME out=DIR ...
+    motiongen fit input=DATASET_DIR seq=NAME out=DIR ...
 
 `input` is a joints npz (key `joints`: (T, 22, 3) or (S, T, 22, 3); 24 joints = body+index1
 are accepted and the first 22 used; optional key `fps`) or a motiongen dataset directory
@@ -32,7 +32,8 @@ SPEC = {"input": (str, None), "out": (str, None), "seq": (str, None), "body.mode
 
 
 def parse_args(argv: list[str]) -> dict:
-    return parse_key_values(argv, SPEC, required=("input", "out"), usage="python -m motiongen.fit input=motion.npz out=DIR")
+    return parse_key_values(argv, SPEC, required=("input", "out"), usage="motiongen fit input=motion.npz out=DIR",
+                            doc=__doc__)
 
 
 def load_input(opts: dict) -> tuple[np.ndarray, float, str]:

@@ -9,7 +9,7 @@ from motiongen.config import register_configs
 from motiongen.models import PRESETS
 from motiongen.training.builders import data_config, mask_config, window_config
 
-CONFIGS = str(Path(__file__).resolve().parents[1] / "configs")
+CONFIGS = str(Path(__file__).resolve().parents[1] / "motiongen" / "configs")
 register_configs()
 
 

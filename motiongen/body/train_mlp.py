@@ -1,6 +1,6 @@
 """Train the 3-frame joints → SMPL-X MLP.
 
-    python -m motiongen.body.train_mlp out=runs/j2b steps=20000 mlp.width=512 \
+    motiongen train-body-mlp out=runs/j2b steps=20000 mlp.width=512 \
         [data.root=DATASET_DIR] [body.model_path=SMPLX_NEUTRAL.npz]
 
 Training pairs are (joints, parameters) with joints produced by *our* body model from the

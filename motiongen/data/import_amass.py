@@ -1,6 +1,6 @@
 """Convert AMASS-style SMPL-X / SMPL-H sequences (.npz) into a motiongen dataset.
 
-    python -m motiongen.data.import_amass inputs=[a.npz,b.npz] out=DIR [body_model=PATH]
+    motiongen import-amass inputs=[a.npz,b.npz] out=DIR [body_model=PATH]
         [up=z|y] [scene=GRID_STEM] [scene_id=0] [split=train] [fps=30] [action=walk] [overwrite=true]
 
 Each file holds `poses` (T, 165) SMPL-X (root 3 + body 63 + jaw 3 + eyes 6 + hands 90) or
@@ -220,7 +220,7 @@ def import_amass(path: str | Path, body_model: BodyModel | str | Path | None = N
 
 
 def parse_args(argv: list[str]) -> dict:
-    return parse_key_values(argv, SPEC, required=("inputs", "out"), usage=USAGE)
+    return parse_key_values(argv, SPEC, required=("inputs", "out"), usage=USAGE, doc=__doc__)
 
 
 def run(args: dict) -> Path:

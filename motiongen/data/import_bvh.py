@@ -1,6 +1,6 @@
 """Convert BVH files into a motiongen dataset (one sequence per file).
 
-    python -m motiongen.data.import_bvh inputs=[a.bvh,b.bvh] out=DIR [mapping=FILE]
+    motiongen import-bvh inputs=[a.bvh,b.bvh] out=DIR [mapping=FILE]
         [scene=GRID_STEM] [scene_id=0] [split=train] [unit=cm] [up=z] [fps=30] [action=walk] [overwrite=true]
 
 Joints are mapped onto the 22 SMPL-X body joints (built-in CMU / Biovision / Mixamo / SMPL-X
@@ -47,7 +47,7 @@ USAGE = "inputs=[a.bvh,b.bvh] out=DIR [mapping=FILE]"
 
 
 def parse_args(argv: list[str]) -> dict:
-    return parse_key_values(argv, SPEC, required=("inputs", "out"), usage=USAGE)
+    return parse_key_values(argv, SPEC, required=("inputs", "out"), usage=USAGE, doc=__doc__)
 
 
 def foot_contact(joints: np.ndarray, fps: float) -> np.ndarray:

@@ -14,7 +14,7 @@ Interpretations of the release (see docs/data_format.md, "TRUMANS release mappin
 - scene ids: `scene_ids_from_names`; objects: `interpret_object_flags`;
   contacts (not in the release): `scene_contact`.
 
-CLI:  python -m motiongen.data.trumans release=DIR out=DIR [joints=body] [overwrite=true]
+CLI:  motiongen import-trumans release=DIR out=DIR [joints=body] [overwrite=true]
       [progress=false] [allow_pickle=true]
 """
 
@@ -482,16 +482,12 @@ _CLI_SPEC = {"release": (str, None), "out": (str, None), "joints": (str, "body+i
 def parse_cli(argv: list[str]) -> dict:
     """key=value arguments -> convert_trumans kwargs; ConfigError on anything else."""
     return parse_key_values(argv, _CLI_SPEC, required=("release", "out"),
-                            usage="python -m motiongen.data.trumans release=DIR out=DIR")
+                            usage="motiongen import-trumans release=DIR out=DIR", doc=__doc__.split("CLI:")[1])
 
 
 @user_errors_exit_2
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else list(argv)
-    if any(a in ("-h", "--help", "help") for a in argv):
-        print(__doc__.split("CLI:")[1].strip())
-        return 0
-    kw = parse_cli(argv)
+    kw = parse_cli(sys.argv[1:] if argv is None else list(argv))
     path = convert_trumans(kw.pop("release"), kw.pop("out"), **kw)
     print(f"wrote {path}")
     return 0

@@ -2,7 +2,7 @@
 scripted motions (walk, stand, sit, lie down, pick up, carry) written in the motiongen format,
 deterministic by seed, so training and evaluation run with no downloads.
 
-    generate(root, size="default", seed=0)   # or: python -m motiongen.data.synthetic out=DIR
+    generate(root, size="default", seed=0)   # or: motiongen synthetic out=DIR
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""python -m motiongen.data.synthetic out=DIR [size=default|small] [seed=0] [overwrite=false] [workers=N]"""
+"""motiongen synthetic out=DIR [size=default|small] [seed=0] [overwrite=false] [workers=N]"""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from motiongen.cli import parse_key_values, user_errors_exit_2
 
 SPEC = {"out": (str, None), "size": (str, "default"), "seed": (int, 0), "overwrite": (bool, False),
         "workers": (int, None)}
-USAGE = "python -m motiongen.data.synthetic out=DIR [size=default|small] [seed=0] [overwrite=true] [workers=N]"
+USAGE = "motiongen synthetic out=DIR [size=default|small] [seed=0] [overwrite=true] [workers=N]"
 
 
 @user_errors_exit_2
@@ -17,7 +17,8 @@ def main(argv: list[str] | None = None) -> None:
     from motiongen.data.format import MotionDataset
     from motiongen.data.synthetic import generate
 
-    opts = parse_key_values(sys.argv[1:] if argv is None else argv, SPEC, required=("out",), usage=USAGE)
+    opts = parse_key_values(sys.argv[1:] if argv is None else argv, SPEC, required=("out",), usage=USAGE,
+                            doc="Generate the embedded synthetic human-scene dataset into out=DIR.")
     t0 = time.perf_counter()
     root = generate(opts["out"], size=opts["size"], seed=opts["seed"], overwrite=opts["overwrite"],
                     workers=opts["workers"])

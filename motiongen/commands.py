@@ -1,0 +1,56 @@
+"""The `motiongen` command: one entry point for every tool.
+
+    motiongen <command> [key=value ...]      motiongen <command> --help      motiongen --help
+
+`train`, `sample` and `evaluate` are Hydra applications (motiongen/configs/*.yaml; `--help`
+prints their whole config); the others take `key=value` arguments in the same override syntax
+and list their keys and defaults with `--help`. Every user error is one line on stderr and exit
+status 2.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+# name -> (module, what it does). Modules of the small tools have `main(argv)`.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "train": ("motiongen.apps", "train a motion model (or the joints-to-body MLP: task=joints2body)"),
+    "sample": ("motiongen.apps", "generate motion through goal points in a scene: npz, video, BVH, SMPL-X"),
+    "evaluate": ("motiongen.apps", "the TRUMANS static/dynamic protocol against the data and real mocap"),
+    "fit": ("motiongen.fit", "joint trajectories -> SMPL-X body parameters (MLP + refinement)"),
+    "synthetic": ("motiongen.data.synthetic.__main__", "generate the embedded synthetic dataset"),
+    "import-bvh": ("motiongen.data.import_bvh", "BVH files -> a motiongen dataset"),
+    "import-amass": ("motiongen.data.import_amass", "AMASS-style SMPL-X / SMPL-H npz -> a motiongen dataset"),
+    "import-trumans": ("motiongen.data.trumans", "the public TRUMANS release -> a motiongen dataset"),
+    "train-body-mlp": ("motiongen.body.train_mlp", "train the joints-to-SMPL-X MLP alone (Hydra, TrainMLPConfig)"),
+}
+HYDRA_APPS = ("train", "sample", "evaluate")
+HYDRA_MAINS = ("train-body-mlp",)              # Hydra apps with their own structured config
+
+
+def usage() -> str:
+    width = max(len(c) for c in COMMANDS)
+    rows = "\n".join(f"  {name:<{width}}  {what}" for name, (_, what) in COMMANDS.items())
+    return f"usage: motiongen <command> [key=value ...]   (motiongen <command> --help for its keys)\n\ncommands:\n{rows}"
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(usage())
+        sys.exit(0 if argv else 2)
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(f"error: unknown command {name!r}; expected one of {', '.join(COMMANDS)}", file=sys.stderr)
+        sys.exit(2)
+    module = importlib.import_module(COMMANDS[name][0])
+    if name in HYDRA_APPS or name in HYDRA_MAINS:
+        sys.argv = [f"motiongen {name}", *rest]          # Hydra reads its overrides from sys.argv
+        module.run_app(name) if name in HYDRA_APPS else module.main()
+    else:
+        sys.exit(module.main(rest) or 0)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,92 @@
+"""One configuration mechanism and one command: the small tools parse key=value with Hydra's
+override grammar (tool_help lists keys and defaults), and `motiongen <command>` reaches every
+tool with the same errors as the scripts."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from motiongen.cli import parse_key_values
+from motiongen.commands import COMMANDS
+from motiongen.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+SPEC = {"inputs": (list, [], "files to read"), "out": (str, None), "fps": (float, 30.0), "n": (int, 3),
+        "overwrite": (bool, False), "up": (str, "y")}
+
+
+def test_values_follow_hydra_grammar_and_types():
+    got = parse_key_values(["inputs=a.bvh", "out='my dir/x'", "fps=25", "overwrite=yes", "+n=4", "up=null"], SPEC)
+    assert got == {"inputs": ["a.bvh"], "out": "my dir/x", "fps": 25.0, "n": 4, "overwrite": True, "up": None}
+    got = parse_key_values(["inputs=[a.bvh,'b c.bvh']", "out=007", "fps=1e1"], SPEC)
+    assert got["inputs"] == ["a.bvh", "b c.bvh"] and got["out"] == "007" and got["fps"] == 10.0
+    assert parse_key_values(["inputs=a.bvh,b.bvh"], SPEC)["inputs"] == ["a.bvh", "b.bvh"]
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["n=1.5"], "n='1.5': expected an integer"),
+    (["fps=fast"], "fps='fast': expected a number"),
+    (["overwrite=maybe"], "overwrite='maybe': expected true or false"),
+    (["n=1,2"], "expected one value, not a sweep"),
+    (["inputs=[a,"], "inputs='[a,': no viable alternative"),
+    (["out="], "out= is empty"),
+    (["color=red"], "unknown key 'color'; expected one of inputs, out, fps, n, overwrite, up"),
+    (["x.bvh"], "argument 'x.bvh': expected key=value"),
+    (["fps=24"], "missing out=..."),
+])
+def test_bad_values_are_config_errors(argv, message):
+    with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("+", r"\+")):
+        parse_key_values(argv, SPEC, required=("out",))
+
+
+def test_help_lists_every_key_with_type_and_default(capsys):
+    with pytest.raises(SystemExit) as e:
+        parse_key_values(["out=x", "--help"], SPEC, required=("out",), usage="tool out=DIR", doc="Does a thing.")
+    assert e.value.code == 0
+    text = capsys.readouterr().out
+    assert text.startswith("Does a thing.") and "usage: tool out=DIR" in text
+    rows = {ln.split()[0]: ln.split()[1:] for ln in text.splitlines() if ln.startswith("  ")}
+    assert rows["out"] == ["str", "(required)"] and rows["fps"] == ["float", "default:", "30.0"]
+    assert rows["inputs"] == ["list", "default:", "[]", "files", "to", "read"] and rows["up"][-1] == "y"
+
+
+def motiongen(*args):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, "-m", "motiongen.commands", *args], capture_output=True, text=True,
+                          env=env, cwd=ROOT, timeout=120)
+
+
+def test_console_script_is_installed():
+    text = (ROOT / "pyproject.toml").read_text()
+    assert 'motiongen = "motiongen.commands:main"' in text
+    assert (Path(sys.executable).parent / "motiongen").exists()      # pip install -e . made it
+
+
+def test_command_list_and_unknown_command():
+    r = motiongen("--help")
+    assert r.returncode == 0 and all(f"  {name} " in r.stdout for name in COMMANDS)
+    r = motiongen("trian")
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"error: unknown command 'trian'; expected one of {', '.join(COMMANDS)}"]
+
+
+@pytest.mark.parametrize("name", [n for n in COMMANDS if n not in ("train", "sample", "evaluate", "train-body-mlp")])
+def test_every_small_tool_has_help_and_one_line_errors(name):
+    r = motiongen(name, "--help")
+    assert r.returncode == 0 and "keys (key=value" in r.stdout and "default:" in r.stdout, r.stderr
+    r = motiongen(name, "bogus_key=1")
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [r.stderr.strip()], r.stderr
+    assert r.stderr.startswith("error: unknown key 'bogus_key'")
+
+
+@pytest.mark.parametrize("name", ["train", "sample", "evaluate"])
+def test_hydra_apps_through_the_command(name, tmp_path):
+    r = motiongen(name, "nonsense_key=1", f"hydra.run.dir={tmp_path / 'run'}")
+    assert r.returncode == 2 and r.stderr.startswith("error: unknown key") and len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "run").exists()
+    if name != "train":
+        r = motiongen(name, f"ckpt={tmp_path / 'none.pt'}", f"out={tmp_path / 'o'}")
+        assert r.returncode == 2 and "checkpoint file does not exist" in r.stderr and "Traceback" not in r.stderr
