@@ -14,10 +14,8 @@ import numpy as np
 import pytest
 
 from motiongen.data.format import MotionDataset
-from motiongen.data.trumans import (
-    TRUMANS_ACTIONS, GridSpec, _ball_boxes, convert_trumans, interpret_object_flags, main,
-    near_occupied, scene_ids_from_names,
-)
+from motiongen.data.trumans import _ball_boxes, convert_trumans, main, near_occupied
+from motiongen.data.trumans_release import TRUMANS_ACTIONS, GridSpec, interpret_object_flags, scene_ids_from_names
 from motiongen.errors import ConfigError, DataError
 
 GRID = GridSpec()
