@@ -397,7 +397,7 @@ def fit_joints(joints, body_model: BodyModel | None = None, mlp: JointsToBodyMLP
                 # The term's hinge is a poor start for L-BFGS: from the initialisation, 30 iterations
                 # ended at 2-3x the loss reached from the joint fit (CMU mocap), so it is added in a
                 # second pass from the first pass's result. That pass needs ~100 iterations: after
-                # 30, a foot sliding at 2a still moved at 1.5a (tests/test_fit_foot_contact.py).
+                # 30, a standing body's foot sliding at 2a still moved at 1.5a (docs/capture.md).
                 R, transl, b, s2, h2 = refine(bm, X, R, b, replace(cfg, max_steps=cfg.foot_vel_steps), ct,
                                               fixed_betas=fixed, transl_init=transl, fps=fps)
                 steps, hist = steps + s2, hist + h2

@@ -218,7 +218,8 @@ def process(rec: SensorRecording, video_fps: float, clap_frames, *, frames: np.n
         candidates = find_claps(rec, chans, clap_height, clap_max_width)
         if len(candidates) < 2:
             raise DataError(rec.path, ",".join(rec.channels[c] for c in chans),
-                            f"found {len(candidates)} clap peak(s), need a start and an end clap: pass "
+                            f"found {len(candidates)} clap peak(s) (sampling at {rec.rate:.3g} Hz, time in "
+                            f"{rec.time_unit}), need a start and an end clap: pass "
                             "clap_samples=[I0,I1] (the two rows), or clap_channels= / clap_height= / clap_max_width=")
         i0, i1 = int(candidates[0]), int(candidates[-1])
     clock = ClockMap(float(rec.time[i0]), float(rec.time[i1]), f0, f1, float(video_fps))
