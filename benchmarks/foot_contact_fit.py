@@ -104,7 +104,8 @@ def main() -> None:
                              time.time() - t))
         print(f"{name}: {len(X)} frames at {fps:g} fps, contact labels on {100 * contact.mean():.0f} % of "
               f"foot-joint frames", flush=True)
-    print("\n| clip | fit | w_foot_vel | MPJPE cm | foot skating | grounded slide m/s | foot speed in contact m/s | s |")
+    print("\n| clip | fit | w_foot_vel | MPJPE cm | foot skating | grounded slide m/s | "
+          "foot speed in contact m/s | s |")
     print("|---|---|---:|---:|---:|---:|---:|---:|")
     for name, what, w, m, sec in rows:
         print(f"| {name} | {what} | {w} | {m['mpjpe_cm']:.2f} | {m['skating']:.3f} | {m['slide']:.3f} | "

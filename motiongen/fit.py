@@ -161,7 +161,8 @@ def run(argv: list[str]) -> dict:
         print("preparing the default joints->SMPL-X MLP (trained once, then cached)...", flush=True)
         mlp = default_mlp(bm, verbose=False)
     cfg = RefineConfig(w_foot_vel=opts["foot_vel.weight"], foot_vel_a=opts["foot_vel.a"],
-                       foot_z_thres=opts["foot_vel.z_thres"], foot_vel_mask=opts["foot_vel.mask"], floor_y=opts["floor_y"])
+                       foot_z_thres=opts["foot_vel.z_thres"], foot_vel_mask=opts["foot_vel.mask"],
+                       floor_y=opts["floor_y"])
     if opts["steps"] is not None:
         cfg.max_steps = opts["steps"]
     if cfg.w_foot_vel < 0 or cfg.foot_vel_a < 0:

@@ -213,7 +213,8 @@ def process(rec: SensorRecording, video_fps: float, clap_frames, *, frames: np.n
     if clap_samples is not None:
         i0, i1 = (int(i) for i in clap_samples)
         if not 0 <= i0 < i1 < len(rec.time):
-            raise ConfigError(f"clap_samples=[{i0},{i1}]: expected two increasing sample rows in 0..{len(rec.time) - 1}")
+            raise ConfigError(f"clap_samples=[{i0},{i1}]: expected two increasing sample rows in "
+                              f"0..{len(rec.time) - 1}")
     else:
         candidates = find_claps(rec, chans, clap_height, clap_max_width)
         if len(candidates) < 2:
@@ -243,13 +244,15 @@ def process(rec: SensorRecording, video_fps: float, clap_frames, *, frames: np.n
     signal = resample(rec, clock, frames, half_width, resample_method)          # (F, C)
     # Thresholds come from the trial (between the claps, away from them): the claps' spikes
     # and whatever happens before and after the trial are not contact levels.
-    guard = clap_guard * rec.rate
-    a, b = int(i0 + guard), int(i1 - guard)
+    a = int(np.searchsorted(rec.time, clock.t0 + clap_guard, side="right"))
+    b = int(np.searchsorted(rec.time, clock.t1 - clap_guard, side="left"))
     if b <= a:
         a, b = i0 + 1, i1
     given = thresholds if thresholds is not None else [None] * C
-    th = [Threshold(float(v), "given") if v is not None else propose_threshold(rec.values[a:b, c], rec.adc_max, min_contrast)
-          for c, v in enumerate(given)]
+    if len(given) != C:
+        raise ConfigError(f"thresholds: expected {C} entries (one per sensor column), got {len(given)}")
+    th = [Threshold(float(v), "given") if v is not None
+          else propose_threshold(rec.values[a:b, c], rec.adc_max, min_contrast) for c, v in enumerate(given)]
     raw = signal > np.array([t.value for t in th])[None]
     if mask_claps:
         # The claps press the hand sensors against each other, not against the scene.
@@ -294,7 +297,8 @@ def _numbers(key: str, items: list[str], n: int, kind=float) -> list:
     try:
         return [kind(v) for v in items]
     except ValueError:
-        raise ConfigError(f"{key}=[{','.join(items)}]: expected {n} {'integers' if kind is int else 'numbers'}") from None
+        kinds = "integers" if kind is int else "numbers"
+        raise ConfigError(f"{key}=[{','.join(items)}]: expected {n} {kinds}") from None
 
 
 def parse_thresholds(items: list[str], rec: SensorRecording) -> list[float | None]:

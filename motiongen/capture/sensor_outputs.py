@@ -154,8 +154,9 @@ def dataset_frames(root: str | Path, sequence: str, video_fps: float, frame_offs
     names = ds.joint_set.names
     for col, j in zip(rec.channels, rec.joints):
         if j not in names:
-            raise DataError(Path(root) / "meta.json", "joint_names", f"sensor column {col!r} labels joint {j!r}, which "
-                                                                     f"this dataset's joint set ({ds.joint_set.name}) lacks")
+            raise DataError(Path(root) / "meta.json", "joint_names",
+                            f"sensor column {col!r} labels joint {j!r}, which this dataset's joint set "
+                            f"({ds.joint_set.name}) lacks")
     ratio = video_fps / ds.fps
     frames = frame_offset + ratio * np.arange(seq.num_frames, dtype=np.float64)
     return DatasetTarget(Path(root), seq.name, seq.start, seq.end, tuple(names), frames, ratio / 2, frame_offset)
@@ -170,7 +171,8 @@ def attach_to_dataset(t: DatasetTarget, rec: SensorRecording, res: SensorContact
     path = t.root / "contact.npy"
     contact = np.load(path, allow_pickle=False)                                # (N, J) bool, a copy in RAM
     if contact.ndim != 2 or contact.shape[1] != len(t.joint_names) or contact.dtype != bool:
-        raise DataError(path, "contact", f"expected (N, {len(t.joint_names)}) bool, found {contact.dtype} {contact.shape}")
+        raise DataError(path, "contact", f"expected (N, {len(t.joint_names)}) bool, "
+                                         f"found {contact.dtype} {contact.shape}")
     jc = joint_contact(res.contact, rec.joints, t.joint_names)                 # (T, J)
     cols = sorted({t.joint_names.index(j) for j in rec.joints})
     before = contact[t.start:t.end, cols].copy()
