@@ -135,6 +135,21 @@ def _typed(kind, value):
     return node(value=value)._value()
 
 
+def _quoted_list(parser, key: str, value: str):
+    """A list whose items hold characters the grammar reserves (`thresholds=[right_foot=700]`):
+    the same items quoted, or None when that does not parse either."""
+    from hydra.errors import HydraException
+
+    v = value.strip()
+    if not (v.startswith("[") and v.endswith("]")) or any(c in v[1:-1] for c in "[]'\"\\"):
+        return None
+    items = [i.strip() for i in v[1:-1].split(",") if i.strip()]
+    try:
+        return parser.parse_override(f"{key}=[{','.join(repr(i) for i in items)}]")
+    except HydraException:
+        return None
+
+
 def tool_help(spec: dict, usage: str = "", doc: str = "", required: tuple[str, ...] = ()) -> str:
     """The `--help` text of a small tool: what it does, its usage and every key with its type and
     default."""
@@ -182,8 +197,10 @@ def parse_key_values(argv: list[str], spec: dict[str, tuple], required: tuple[st
         try:
             override = parser.parse_override(f"{key}={value}")
         except HydraException as e:
-            why = str(e).splitlines()[0] if str(e) else "cannot parse"
-            raise ConfigError(f"{key}={value!r}: {why}") from None
+            override = _quoted_list(parser, key, value) if kind is list else None
+            if override is None:
+                why = str(e).splitlines()[0] if str(e) else "cannot parse"
+                raise ConfigError(f"{key}={value!r}: {why}") from None
         if override.is_sweep_override():
             raise ConfigError(f"{key}={value!r}: expected one value, not a sweep")
         parsed = override.value()

@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "import-bvh": ("motiongen.data.import_bvh", "BVH files -> a motiongen dataset"),
     "import-amass": ("motiongen.data.import_amass", "AMASS-style SMPL-X / SMPL-H npz -> a motiongen dataset"),
     "import-trumans": ("motiongen.data.trumans", "the public TRUMANS release -> a motiongen dataset"),
+    "contact-sensors": ("motiongen.capture.contact_sensors", "force-sensor recordings -> per-frame joint contact (clap sync, thresholds)"),
     "train-body-mlp": ("motiongen.body.train_mlp", "train the joints-to-SMPL-X MLP alone (Hydra, TrainMLPConfig)"),
 }
 HYDRA_APPS = ("train", "sample", "evaluate")

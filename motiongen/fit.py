@@ -3,6 +3,7 @@
     motiongen fit input=motion.npz out=DIR [body.model_path=SMPLX_NEUTRAL.npz]
         [mlp=auto|none|PATH] [steps=40] [mesh=auto|true|false] [mesh_format=obj|glb]
         [mesh_max_frames=60] [fps=30] [device=cpu]
+        [foot_vel.weight=0] [foot_vel.a=0.1] [foot_vel.z_thres=0.1] [foot_vel.mask=height|contact] [floor_y=0]
     motiongen fit input=DATASET_DIR seq=NAME out=DIR ...
 
 `input` is a joints npz (key `joints`: (T, 22, 3) or (S, T, 22, 3); 24 joints = body+index1
@@ -10,6 +11,10 @@ are accepted and the first 22 used; optional key `fps`) or a motiongen dataset d
 with `seq`. Writes `params.npz` (or `params_s{i}.npz` per sample; AMASS SMPL-X layout, see
 `motiongen.body.fit.save_amass_npz`), `report.json` (MPJPE before/after refinement) and, with
 the procedural body model (or mesh=true), a per-frame mesh sequence under `mesh/`.
+`foot_vel.weight` > 0 adds seed 002's foot velocity term (`motiongen.body.foot_velocity`):
+feet within `foot_vel.z_thres` m of `floor_y` (mask=height) or flagged by contact labels
+(mask=contact: the dataset sequence's `contact.npy`, or the npz key `contact`) are held below
+`foot_vel.a` m/s.
 """
 
 from __future__ import annotations
@@ -24,11 +29,13 @@ import numpy as np
 
 from motiongen.cli import parse_key_values, user_errors_exit_2
 from motiongen.errors import ConfigError, DataError
-from motiongen.skeleton import NUM_BODY_JOINTS
+from motiongen.skeleton import FOOT_JOINTS, NUM_BODY_JOINTS
 
 SPEC = {"input": (str, None), "out": (str, None), "seq": (str, None), "body.model_path": (str, None),
         "body.num_betas": (int, 10), "mlp": (str, "auto"), "steps": (int, None), "mesh": (str, "auto"),
-        "mesh_format": (str, "obj"), "mesh_max_frames": (int, 60), "fps": (float, None), "device": (str, "cpu")}
+        "mesh_format": (str, "obj"), "mesh_max_frames": (int, 60), "fps": (float, None), "device": (str, "cpu"),
+        "foot_vel.weight": (float, 0.0), "foot_vel.a": (float, 0.10), "foot_vel.z_thres": (float, 0.10),
+        "foot_vel.mask": (str, "height"), "floor_y": (float, 0.0)}
 
 
 def parse_args(argv: list[str]) -> dict:
@@ -81,6 +88,33 @@ def load_input(opts: dict) -> tuple[np.ndarray, float, str]:
     return joints, fps, str(path)
 
 
+def load_contact(opts: dict, S: int, T: int) -> np.ndarray:
+    """(S, T, 4) bool contact labels of `skeleton.FOOT_JOINTS` for foot_vel.mask=contact: the
+    dataset sequence's `contact.npy` rows, or the input npz's key `contact` — (T, J) or
+    (S, T, J) with J = 22 or 24 joints (the foot joints' columns are taken), or (T, 4) /
+    (S, T, 4) in FOOT_JOINTS order (left ankle, left toe, right ankle, right toe)."""
+    path = Path(opts["input"])
+    if path.is_dir():
+        from motiongen.data.format import MotionDataset
+
+        ds = MotionDataset.open(path, check_values=False)
+        seq = next(s for s in ds.sequences if s.name == opts["seq"])
+        return np.asarray(ds.contact[seq.start:seq.end])[None][..., list(FOOT_JOINTS)]
+    with np.load(path, allow_pickle=False) as z:
+        if "contact" not in z.files:
+            raise DataError(path, "contact", "foot_vel.mask=contact needs contact labels: key 'contact' (T, 22) bool "
+                                             "is missing (or use foot_vel.mask=height)")
+        c = np.asarray(z["contact"])
+    if c.ndim == 2:
+        c = c[None]
+    widths = {NUM_BODY_JOINTS: True, NUM_BODY_JOINTS + 2: True, len(FOOT_JOINTS): False}
+    if c.ndim != 3 or c.shape[:2] != (S, T) or c.shape[2] not in widths or c.dtype.kind not in "bui":
+        raise DataError(path, "contact", f"expected bool ({T}, 22), ({T}, 24) or ({T}, 4) like the joints "
+                                         f"({S} sample(s) of {T} frames), found {c.dtype} {c.shape}")
+    c = c.astype(bool)
+    return c[..., list(FOOT_JOINTS)] if widths[c.shape[2]] else c
+
+
 def export_meshes(bm, fit, out_dir: Path, fmt: str, max_frames: int) -> int:
     """Per-frame meshes (every k-th frame, at most max_frames) -> number written."""
     import trimesh
@@ -103,6 +137,7 @@ def run(argv: list[str]) -> dict:
     opts = parse_args(argv)
     from motiongen.body.fit import RefineConfig, fit_joints, save_amass_npz
     from motiongen.body.model import load_body_model
+    from motiongen.eval.metrics import foot_skating_ratio
 
     joints, fps, desc = load_input(opts)
     if opts["fps"] is not None:
@@ -126,24 +161,39 @@ def run(argv: list[str]) -> dict:
 
         print("preparing the default joints->SMPL-X MLP (trained once, then cached)...", flush=True)
         mlp = default_mlp(bm, verbose=False)
-    cfg = RefineConfig()
+    cfg = RefineConfig(w_foot_vel=opts["foot_vel.weight"], foot_vel_a=opts["foot_vel.a"],
+                       foot_z_thres=opts["foot_vel.z_thres"], foot_vel_mask=opts["foot_vel.mask"],
+                       floor_y=opts["floor_y"])
     if opts["steps"] is not None:
         cfg.max_steps = opts["steps"]
+    if cfg.w_foot_vel < 0 or cfg.foot_vel_a < 0:
+        raise ConfigError("foot_vel.weight and foot_vel.a must be >= 0")
+    if cfg.foot_vel_mask not in ("height", "contact"):
+        raise ConfigError(f"foot_vel.mask={cfg.foot_vel_mask!r}: expected height or contact")
+    contact = None
+    if cfg.w_foot_vel and cfg.foot_vel_mask == "contact":
+        contact = load_contact(opts, joints.shape[0], joints.shape[1])
     out = Path(opts["out"])
     out.mkdir(parents=True, exist_ok=True)
     S = joints.shape[0]
     do_mesh = opts["mesh"] == "true" or (opts["mesh"] == "auto" and bm.is_procedural)
     report = {"input": desc, "fps": fps, "body_model": str(bm.path), "procedural_body": bm.is_procedural,
               "init": None, "samples": []}
+    if cfg.w_foot_vel:
+        report["foot_velocity"] = {"weight": cfg.w_foot_vel, "a": cfg.foot_vel_a, "z_thres": cfg.foot_z_thres,
+                                   "mask": cfg.foot_vel_mask, "floor_y": cfg.floor_y}
     for s in range(S):
-        fit = fit_joints(joints[s], bm, mlp, config=cfg, device=opts["device"])
+        fit = fit_joints(joints[s], bm, mlp, config=cfg, device=opts["device"], fps=fps,
+                         contact=None if contact is None else contact[s])
         name = "params.npz" if S == 1 else f"params_s{s:02d}.npz"
         save_amass_npz(out / name, fit, fps)
         entry = {"sample": s, "frames": int(joints.shape[1]), "params": name,
                  "mpjpe_mlp_cm": None if fit.mpjpe_mlp is None else round(fit.mpjpe_mlp * 100, 4),
                  "mpjpe_init_cm": round(fit.mpjpe_init * 100, 4), "mpjpe_cm": round(fit.mpjpe * 100, 4),
                  "max_frame_error_cm": round(float(fit.per_frame_error.max()) * 100, 4),
-                 "steps": fit.steps, "seconds": round(fit.seconds, 3)}
+                 "steps": fit.steps, "seconds": round(fit.seconds, 3),
+                 "foot_skating": {"input": round(foot_skating_ratio(joints[s], fps), 4),
+                                  "fit": round(foot_skating_ratio(fit.joints, fps), 4)}}
         report["init"] = fit.init
         if do_mesh:
             mdir = out / ("mesh" if S == 1 else f"mesh_s{s:02d}")

@@ -1,4 +1,4 @@
-"""The fitting CLI: `python -m motiongen.fit input=... out=...`."""
+"""The fitting CLI: `motiongen fit input=... out=...` (`python -m motiongen.fit`)."""
 
 import json
 import os

@@ -24,6 +24,9 @@ def test_values_follow_hydra_grammar_and_types():
     got = parse_key_values(["inputs=[a.bvh,'b c.bvh']", "out=007", "fps=1e1"], SPEC)
     assert got["inputs"] == ["a.bvh", "b c.bvh"] and got["out"] == "007" and got["fps"] == 10.0
     assert parse_key_values(["inputs=a.bvh,b.bvh"], SPEC)["inputs"] == ["a.bvh", "b.bvh"]
+    # Items with characters the grammar reserves are read as quoted items (sensor thresholds).
+    assert parse_key_values(["inputs=[right_foot=700,left_foot:heel=250]"], SPEC)["inputs"] == [
+        "right_foot=700", "left_foot:heel=250"]
 
 
 @pytest.mark.parametrize("argv,message", [

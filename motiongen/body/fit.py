@@ -13,6 +13,8 @@ rotations, translations, one β per sequence) with L-BFGS on
                                                  barely observable from joints)
   + w_betas  · ‖β‖² / nβ                         shape prior
   + w_contact · mean over contact spans of ‖J_t − mean_span J‖²  (optional foot locking)
+  + w_foot_vel · Σ max(0, ‖v_foot‖ − a) over feet near the floor or flagged in contact,
+                 / ((T−1)·K)                       (seed 002, Eq. 14; `foot_velocity.py`)
 
 (seed 000: 3D keypoint L2, second-difference smoothness of keypoints and joint angles, ℓ2
 shape prior). Only joint kinematics run per iteration (`BodyModel.joints_from_rotmats`), never
@@ -25,13 +27,14 @@ from __future__ import annotations
 import hashlib
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from motiongen.body._threads import torch_threads
+from motiongen.body.foot_velocity import check_mask, foot_velocity_loss, foot_velocity_mask
 from motiongen.body.mlp import JointsToBodyMLP
 from motiongen.body.model import BodyModel, load_body_model
 from motiongen.body.rotations import matrix_to_axis_angle, matrix_to_rot6d, rot6d_to_matrix
@@ -57,6 +60,14 @@ class RefineConfig:
     w_reach: float = 0.0            # weight of `reach` targets (a hand on an object)
     w_floor: float = 0.0            # joint centres below floor_y (squared depth, summed over joints)
     floor_y: float = 0.0
+    # Seed 002's foot velocity term (foot_velocity.py): foot joints faster than foot_vel_a m/s
+    # while within foot_z_thres m of floor_y ("height", in the target) or flagged by the
+    # contact labels ("contact").
+    w_foot_vel: float = 0.0
+    foot_vel_a: float = 0.10
+    foot_z_thres: float = 0.10
+    foot_vel_mask: str = "height"
+    foot_vel_steps: int = 100       # L-BFGS iterations of fit_joints' second pass, which adds the term
     optimize_betas: bool = True
     mlp_smooth_sigma: float = 2.0   # frames; Gaussian smoothing of the per-frame MLP rotations
     threads: int = 1                # torch intra-op threads during refinement; 0: unchanged
@@ -192,10 +203,12 @@ def lock_loss(J: torch.Tensor, ids: torch.Tensor, n: int, joints) -> torch.Tenso
 def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_init: torch.Tensor,
            cfg: RefineConfig = RefineConfig(), contact: torch.Tensor | None = None,
            fixed_betas: bool = False, contact_joints=FOOT_JOINTS, transl_init: torch.Tensor | None = None,
-           reach: tuple | None = None):
+           reach: tuple | None = None, fps: float = 30.0):
     """Refine (T, 22, 3, 3) rotations, (T, 3) translations and (nβ,) betas to fit target
-    joints (T, 22, 3). contact (T, C) bool flags `contact_joints` as planted (foot locking,
-    weight `cfg.w_contact`). reach = (frames (N,), joints (N,), points (N, 3), weights (N,)):
+    joints (T, 22, 3) at `fps`. contact (T, C) bool flags `contact_joints` as planted (foot
+    locking, weight `cfg.w_contact`; and the frames of the foot velocity term, weight
+    `cfg.w_foot_vel`, when `cfg.foot_vel_mask` is "contact"; with "height" that term takes the
+    `contact_joints` near the floor). reach = (frames (N,), joints (N,), points (N, 3), weights (N,)):
     joint positions to reach at those frames (weight `cfg.w_reach`; a weighted mean, so
     weights ramp a reach in and out). Returns (rotmats, transl, betas, steps, history)."""
     T = target.shape[0]
@@ -212,6 +225,11 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
     lock = None
     if contact is not None and cfg.w_contact and bool(contact.any()):
         lock = contact_spans(contact)
+    foot_mask = None
+    if cfg.w_foot_vel:
+        check_mask(cfg.foot_vel_mask, contact, T, len(contact_joints))
+        foot_mask = (contact.to(torch.bool) if cfg.foot_vel_mask == "contact"
+                     else foot_velocity_mask(target, contact_joints, cfg.floor_y, cfg.foot_z_thres))
 
     def loss_fn():
         R = rot6d_to_matrix(rot6d)                                             # (T, 22, 3, 3)
@@ -230,6 +248,8 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
             loss = loss + cfg.w_betas * betas.square().sum() / nb
         if lock is not None:
             loss = loss + cfg.w_contact * lock_loss(J, *lock, contact_joints)
+        if foot_mask is not None:
+            loss = loss + cfg.w_foot_vel * foot_velocity_loss(J, foot_mask, contact_joints, fps, cfg.foot_vel_a)
         if cfg.w_floor:
             loss = loss + cfg.w_floor * (cfg.floor_y - J[..., 1]).clamp(min=0).square().sum(-1).mean()
         if reach is not None and cfg.w_reach:
@@ -313,7 +333,7 @@ def default_mlp(bm: BodyModel, cache: bool = True, verbose: bool = False) -> Joi
 
 def fit_joints(joints, body_model: BodyModel | None = None, mlp: JointsToBodyMLP | str | Path | None = None, *,
                betas=None, contact=None, config: RefineConfig = RefineConfig(), refine_steps: int | None = None,
-               device: str | torch.device = "cpu") -> FitResult:
+               device: str | torch.device = "cpu", fps: float = 30.0) -> FitResult:
     """Fit SMPL-X parameters to body joints.
 
     joints: (T, 22, 3) array/tensor, metres, y-up (SMPL-X body joint order).
@@ -321,7 +341,9 @@ def fit_joints(joints, body_model: BodyModel | None = None, mlp: JointsToBodyMLP
     mlp: a `JointsToBodyMLP`, a checkpoint path, "auto" (`default_mlp`), or None (analytic init).
     betas: (nβ,) known shape (kept fixed) or None (estimated).
     contact: (T, 4) bool planted flags for `skeleton.FOOT_JOINTS`: with config.w_contact > 0 each
-    planted span of a foot joint is held in one place (foot locking, `lock_loss`).
+    planted span of a foot joint is held in one place (foot locking, `lock_loss`); with
+    config.w_foot_vel > 0 and foot_vel_mask "contact" they pick the frames of the foot velocity
+    term (seed 002). fps: the joints' frame rate (velocities of that term are in m/s).
     refine_steps: overrides config.max_steps; 0 returns the initialisation.
     """
     X = joints if isinstance(joints, torch.Tensor) else torch.as_tensor(np.array(joints))  # copy: inputs may be read-only memmaps
@@ -365,8 +387,20 @@ def fit_joints(joints, body_model: BodyModel | None = None, mlp: JointsToBodyMLP
             mpjpe_init = (J0 - X).norm(dim=-1).mean().item()
         cfg = config if refine_steps is None else RefineConfig(**{**config.__dict__, "max_steps": refine_steps})
         ct = None if contact is None else torch.as_tensor(np.asarray(contact), dtype=torch.bool, device=dev)
+        if cfg.w_foot_vel:
+            check_mask(cfg.foot_vel_mask, ct, X.shape[0], len(FOOT_JOINTS))
         if cfg.max_steps > 0:
-            R, transl, b, steps, hist = refine(bm, X, R_init, b_init, cfg, ct, fixed_betas=b_known is not None)
+            fixed = b_known is not None
+            R, transl, b, steps, hist = refine(bm, X, R_init, b_init, replace(cfg, w_foot_vel=0.0), ct,
+                                               fixed_betas=fixed, fps=fps)
+            if cfg.w_foot_vel:
+                # The term's hinge is a poor start for L-BFGS: from the initialisation, 30 iterations
+                # ended at 2-3x the loss reached from the joint fit (CMU mocap), so it is added in a
+                # second pass from the first pass's result. That pass needs ~100 iterations: after
+                # 30, a standing body's foot sliding at 2a still moved at 1.5a (docs/capture.md).
+                R, transl, b, s2, h2 = refine(bm, X, R, b, replace(cfg, max_steps=cfg.foot_vel_steps), ct,
+                                              fixed_betas=fixed, transl_init=transl, fps=fps)
+                steps, hist = steps + s2, hist + h2
         else:
             R, transl, b, steps, hist = R_init, X[:, 0] - bm.rest_joints(b_init)[0], b_init, 0, []
         with torch.no_grad():
