@@ -18,7 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("motiongen.apps", "train a motion model (or the joints-to-body MLP: task=joints2body)"),
     "sample": ("motiongen.apps", "generate motion through goal points in a scene: npz, video, BVH, SMPL-X"),
     "evaluate": ("motiongen.apps", "the TRUMANS static/dynamic protocol against the data and real mocap"),
-    "fit": ("motiongen.fit", "joint trajectories -> SMPL-X body parameters (MLP + refinement)"),
+    "fit": ("motiongen.body.fit_cli", "joint trajectories -> SMPL-X body parameters (MLP + refinement)"),
     "synthetic": ("motiongen.data.synthetic.__main__", "generate the embedded synthetic dataset"),
     "import-bvh": ("motiongen.data.import_bvh", "BVH files -> a motiongen dataset"),
     "import-amass": ("motiongen.data.import_amass", "AMASS-style SMPL-X / SMPL-H npz -> a motiongen dataset"),

@@ -1,4 +1,4 @@
-"""The fitting CLI: `motiongen fit input=... out=...` (`python -m motiongen.fit`)."""
+"""The fitting CLI: `motiongen fit input=... out=...` (`motiongen/body/fit_cli.py`)."""
 
 import json
 import os
@@ -13,7 +13,7 @@ import torch
 from motiongen.body.model import BodyModel
 from motiongen.body.motion import sample_motion
 from motiongen.body.procedural import ensure_procedural_model
-from motiongen.fit import main
+from motiongen.body.fit_cli import main
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -103,7 +103,7 @@ def test_fit_cli_user_errors(tmp_path, capsys, joints, model_path):
 
 def test_fit_cli_subprocess_exit_code(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    r = subprocess.run([sys.executable, "-m", "motiongen.fit", f"input={tmp_path / 'nope.npz'}", f"out={tmp_path}"],
+    r = subprocess.run([sys.executable, "-m", "motiongen.body.fit_cli", f"input={tmp_path / 'nope.npz'}", f"out={tmp_path}"],
                        capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120)
     assert r.returncode == 2 and r.stderr.startswith("error: ") and "Traceback" not in r.stderr
 

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from motiongen.body.fit import FitResult, RefineConfig, analytic_init, fit_joints, refine, save_amass_npz
+from motiongen.body.analytic import analytic_init
+from motiongen.body.fit import FitResult, RefineConfig, fit_joints, refine, save_amass_npz
 from motiongen.body.mlp import JointsToBodyMLP, MLPConfig, canonicalise, triplets
 from motiongen.body.model import BodyModel
 from motiongen.body.motion import joint_limits, sample_motion

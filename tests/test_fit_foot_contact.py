@@ -12,7 +12,7 @@ from motiongen.body.foot_velocity import foot_velocity_loss, foot_velocity_mask
 from motiongen.body.model import load_body_model
 from motiongen.body.motion import sample_motion
 from motiongen.errors import ConfigError
-from motiongen.fit import main
+from motiongen.body.fit_cli import main
 from motiongen.skeleton import FOOT_JOINTS
 
 A = 0.10                                              # the seed's a, m/s

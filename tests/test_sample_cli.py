@@ -82,7 +82,7 @@ def test_end_to_end_writes_all_outputs(files, tmp_path):
         assert z["actions"].shape == z["joints"].shape[:2] and z["path"].shape[1] == 2
         assert z["episode_starts"][0] == 0 and z["arrival_error"].shape == (2, 2)
     assert "real-time factor" in stdout and "goal 1" in stdout
-    from motiongen.fit import load_input  # the fitting tool reads it
+    from motiongen.body.fit_cli import load_input  # the fitting tool reads it
 
     joints, fps, _ = load_input({"input": str(out / "motion.npz")})
     assert joints.shape[0] == 2 and fps == 30.0

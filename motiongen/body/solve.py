@@ -24,7 +24,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from motiongen.body.fit import RefineConfig, analytic_init, refine
+from motiongen.body.analytic import analytic_init
+from motiongen.body.fit import RefineConfig, refine
 from motiongen.body.limbs import place_limbs
 from motiongen.body.model import BodyModel, forward_kinematics
 from motiongen.body.rotations import matrix_to_axis_angle

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from scipy.interpolate import CubicSpline
 
-from motiongen.body.fit import analytic_init
+from motiongen.body.analytic import analytic_init
 from motiongen.skeleton import NUM_BODY_JOINTS
 from motiongen.spans import true_runs
 
