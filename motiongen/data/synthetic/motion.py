@@ -186,12 +186,18 @@ class Timeline:
         c.lean = c.lean + breathe * np.sin(np.pi * u) ** 2 * np.sin(2 * np.pi * 0.25 * np.arange(n) / self.fps)
         self._push(c, action_rows(n, *label))
 
-    def sit(self, seat: Seat) -> bool:
+    def _sit_down_at(self, seat: Seat, hold_s: tuple[float, float]) -> bool:
+        """Walk to the seat, turn, sit down and stay seated for a random time in hold_s."""
         if not self.walk_to(seat.pre_xz, seat.stand_xz):
             return False
         self.turn_to(seat.yaw)
         self._sit_transition(seat, True)
-        self._hold_still(self.rng.uniform(2.0, 6.0), ("sit",))
+        self._hold_still(self.rng.uniform(*hold_s), ("sit",))
+        return True
+
+    def sit(self, seat: Seat) -> bool:
+        if not self._sit_down_at(seat, (2.0, 6.0)):
+            return False
         self._sit_transition(seat, False)
         return True
 
@@ -226,11 +232,8 @@ class Timeline:
 
     def lie(self, bed: Bed) -> bool:
         edge = bed.edge
-        if not self.walk_to(edge.pre_xz, edge.stand_xz):
+        if not self._sit_down_at(edge, (0.3, 0.8)):
             return False
-        self.turn_to(edge.yaw)
-        self._sit_transition(edge, True)
-        self._hold_still(self.rng.uniform(0.3, 0.8), ("sit",))
         self._lie_transition(bed, True)
         self._hold_still(self.rng.uniform(3.0, 7.0), ("lie down",), breathe=0.0)
         self._lie_transition(bed, False)
