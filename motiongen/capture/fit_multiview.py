@@ -2,7 +2,7 @@
 
     python -m motiongen.capture.fit_multiview cameras=cams.json keypoints2d=kp2d.npz out=DIR
         [keypoints3d=kp3d.npz] [layout=smplx22|coco17|body25] [fps=30] [prior=builtin|PATH]
-        [body.model_path=...] [length_unit=0.01] [rho=1.0] [robust=gm|l2] [stage1_frames=100]
+        [body.model_path=...] [length_unit=0.02] [rho=0.01] [robust=gm|l2] [stage1_frames=100]
         [chunk=500] [steps1=60] [steps2=40] [steps3=60] [init_pose=analytic|mean] [init_smooth=2]
         [reject_px=30] [max_jump=0.1] [min_views=2] [tensorboard=true] [threads=1] [device=cpu]
 

@@ -37,8 +37,8 @@ ROOT_JOINTS = tuple(BODY_JOINT_NAMES.index(n) for n in ("left_shoulder", "right_
 
 @dataclass
 class MultiviewConfig:
-    length_unit: float = 0.01         # metres per length unit of L3D / Lsmooth (centimetres)
-    rho: float = 1.0                  # Geman–McClure ρ in length units at the subject (pixels: ρ·f/depth)
+    length_unit: float = 0.02         # metres per length unit of L3D / Lsmooth (docs/capture.md: why 2 cm)
+    rho: float = 0.01                 # Geman–McClure ρ, metres at the subject (pixels: ρ·f/depth)
     robust: str = "gm"                # "gm" | "l2" (the plain-L2 baseline)
     stage1_frames: int = 100
     chunk: int = 500
@@ -222,9 +222,13 @@ class MultiviewFitter:
         return {k: v.detach() for k, v in p.items()}
 
     def targets(self, x3d, w3d, uv, w2d, keypoints, sl: slice, context) -> Targets:
-        return Targets(self._t(x3d[sl]), self._t(w3d[sl]), None if uv is None else self._t(uv[:, sl].transpose(1, 2, 0, 3)),
-                       None if w2d is None else self._t(w2d[:, sl].transpose(1, 2, 0)),
-                       torch.as_tensor(keypoints, device=self.dev), focal=self.focal, context=context)
+        """Frames `sl` of the observations, restricted to the observed joints `keypoints`."""
+        k = keypoints
+        return Targets(self._t(x3d[sl][:, k]), self._t(w3d[sl][:, k]),
+                       None if uv is None else self._t(uv[:, sl][:, :, k].transpose(1, 2, 0, 3)),     # (T, K, C, 2)
+                       None if w2d is None else self._t(w2d[:, sl][:, :, k].transpose(1, 2, 0)),      # (T, K, C)
+                       None if len(k) == NUM_BODY_JOINTS else torch.as_tensor(k, device=self.dev),
+                       focal=self.focal, context=context)
 
     def run_stage(self, stage: int, state: dict, data: tuple, n: int, chunk: int, fit_betas: bool) -> tuple[dict, list]:
         """Stage over frames [0, n) in chunks; returns the new state (all T frames) and the

@@ -12,10 +12,12 @@ Our readings of what the seed leaves open (docs/capture.md gives the reasons and
   the layout has, so a missing detection costs nothing rather than changing the scale.
 - The seed's L3D also sums over cameras c although nothing in it depends on c: a constant
   factor C, which we drop (it would only rescale λ3D).
-- Units: lengths in `length_unit` metres (default 0.01: centimetres). The seed's weights fix
-  the balance between terms only once units are chosen.
-- ρ is given as a length at the subject (`rho`, in length units) and turned into pixels per
-  camera and keypoint: ρ_tkc = ρ·f_c / depth_tkc (f_c the focal length in pixels). φ is then
+- Units: lengths in `length_unit` metres (default 0.02). The seed's weights fix the balance
+  between terms only once units are chosen: L3D scales as 1/unit, Lsmooth's keypoint part as
+  1/unit², Lz not at all, so a large unit hands the fit to the pose prior and a small one to
+  the smoothness term. docs/capture.md gives the measurements behind 2 cm.
+- ρ is given as a length at the subject (`rho`, metres) and turned into pixels per camera
+  and keypoint: ρ_tkc = ρ·f_c / depth_tkc (f_c the focal length in pixels). φ is then
   the seed's φ in pixels, and a near camera (a big person in the image) and a far one get the
   same tolerance in space — what EasyMocap gets by dividing residuals by the person's
   bounding-box size.
@@ -55,11 +57,11 @@ SEED_STAGES = {1: StageWeights(w3d=5.0, w2d=0.0, smooth=0.1, z=0.005, betas=0.04
 class Targets:
     """One chunk's observations (torch tensors) and the fixed frames before it."""
 
-    x3d: torch.Tensor              # (T, 22, 3) metres
-    w3d: torch.Tensor              # (T, 22)
-    uv: torch.Tensor | None        # (T, 22, C, 2) pixels
-    w2d: torch.Tensor | None       # (T, 22, C)
-    keypoints: torch.Tensor        # (K,) long: the joints the layout observes
+    x3d: torch.Tensor              # (T, K, 3) metres
+    w3d: torch.Tensor              # (T, K)
+    uv: torch.Tensor | None        # (T, K, C, 2) pixels
+    w2d: torch.Tensor | None       # (T, K, C)
+    keypoints: torch.Tensor | None # (K,) long: the joints the layout observes (None: all 22)
     focal: torch.Tensor | None = None   # (C,) focal lengths, pixels
     context: tuple | None = None   # (J (2, 22, 3), θ (2, 21, 3), R_root (2, 3, 3)) of the previous frames
 
@@ -74,20 +76,26 @@ def terms(J: torch.Tensor, theta: torch.Tensor, R_root: torch.Tensor, z: torch.T
           need_2d: bool = True) -> dict[str, torch.Tensor]:
     """The five terms (unweighted) of one chunk. J (T, 22, 3) fitted joints, theta (T, 21, 3)
     decoded axis-angle, R_root (T, 3, 3), z (T, d), betas (nβ,); project: world points
-    (..., 3) -> (pixels (..., C, 2), depth (..., C))."""
+    (..., 3) -> (pixels (..., C, 2), depth (..., C)); length_unit: metres per unit of L3D and
+    Lsmooth; rho: metres at the subject."""
     T = J.shape[0]
     kp = tg.keypoints
-    K = max(len(kp), 1)
-    d2 = (J - tg.x3d).square().sum(-1) / length_unit ** 2                   # (T, 22) units²
+
+    def observed(X):                                                        # (T, 22, 3) -> (T, K, 3)
+        return X if kp is None else X[:, kp]
+
+    Jk = observed(J)
+    K = max(Jk.shape[1], 1)
+    d2 = (Jk - tg.x3d).square().sum(-1) / length_unit ** 2                  # (T, K) units²
     dist = torch.sqrt(d2 + EPS * EPS) - EPS
-    out = {"L3D": (tg.w3d * dist)[:, kp].sum() / (T * K)}
+    out = {"L3D": (tg.w3d * dist).sum() / (T * K)}
     if need_2d and tg.uv is not None:
-        uv, depth = project(J[:, kp])                                       # (T, K, C, 2), (T, K, C)
-        r2 = (uv - tg.uv[:, kp]).square().sum(-1)                           # (T, K, C) px²
+        uv, depth = project(Jk)                                             # (T, K, C, 2), (T, K, C)
+        r2 = (uv - tg.uv).square().sum(-1)                                  # (T, K, C) px²
         # (ρ_px)² = (ρ f / depth)²: dividing r² by (f / depth)² instead leaves φ unchanged.
-        r2 = r2 * (depth.detach().clamp(min=1e-3) / (tg.focal * length_unit)).square()
+        r2 = r2 * (depth.detach().clamp(min=1e-3) / tg.focal).square()       # metres² at the subject
         phi = geman_mcclure(r2, rho) if robust == "gm" else r2 / (rho * rho)
-        w = tg.w2d[:, kp] * (depth > 0)
+        w = tg.w2d * (depth > 0)
         out["L2D"] = (w * phi).sum() / (T * K * uv.shape[-2])
     else:
         out["L2D"] = J.new_zeros(())
@@ -95,10 +103,10 @@ def terms(J: torch.Tensor, theta: torch.Tensor, R_root: torch.Tensor, z: torch.T
     out["Lbeta"] = betas.square().sum()
     if tg.context is not None:
         Jc, thc, Rc = tg.context
-        J, theta, R_root = torch.cat([Jc, J]), torch.cat([thc, theta]), torch.cat([Rc, R_root])
-    if J.shape[0] >= 3:
-        n = J.shape[0] - 2
-        acc = (J[2:, kp] - 2 * J[1:-1, kp] + J[:-2, kp]).square().sum(-1).sum() / length_unit ** 2
+        Jk, theta, R_root = torch.cat([observed(Jc), Jk]), torch.cat([thc, theta]), torch.cat([Rc, R_root])
+    if Jk.shape[0] >= 3:
+        n = Jk.shape[0] - 2
+        acc = (Jk[2:] - 2 * Jk[1:-1] + Jk[:-2]).square().sum(-1).sum() / length_unit ** 2
         ang = (theta[2:] - 2 * theta[1:-1] + theta[:-2]).square().sum()
         ang = ang + 0.5 * (R_root[2:] - 2 * R_root[1:-1] + R_root[:-2]).square().sum()
         out["Lsmooth"] = acc / (n * K) + ang / (n * (theta.shape[1] + 1))

@@ -16,8 +16,9 @@ decimetres, and then the wrong view is not always the one reprojecting worst. So
 exhaustively); the views reprojecting within `reject_px` of the best proposal (most
 confidence in agreement) are its inliers, and the point is solved again from them alone. A
 point whose views do not agree (fewer than `min_views` inliers) gets confidence 0. Two views
-cannot expose an outlier that lies along the epipolar line; `max_jump` catches most of those
-afterwards: a point further than that from every prediction of its ±2 neighbouring frames
+cannot expose an outlier that lies along the epipolar line (and with three views, one of
+them such an outlier, two pairs agree equally well); `max_jump` catches most of those
+afterwards: a point further than that from every prediction its nearest valid frames make
 (`temporal_outliers`) is dropped.
 """
 
@@ -88,22 +89,50 @@ def _consensus(cams: Cameras, xy, uv, w, reject_px: float) -> np.ndarray:
     return np.where(inliers, w, 0.0)
 
 
-def temporal_outliers(points: np.ndarray, conf: np.ndarray, max_jump: float) -> np.ndarray:
-    """(T, J) bool: triangulated points further than max_jump (m) from every prediction their
-    neighbours make: the midpoints (X_{t−k} + X_{t+k}) / 2 for k = 1, 2 and the linear
-    extrapolations 2X_{t±1} − X_{t±2}. Smooth motion is within a·Δt² (~1 cm) of all of them;
-    an outlier at t is far from all; an outlier among the neighbours spoils only some."""
-    P = np.where(conf[..., None] > 0, points, np.nan)                             # (T, J, 3)
-    pad = np.pad(P, ((2, 2), (0, 0), (0, 0)), constant_values=np.nan)
-    T = len(P)
+def _nearest_valid(valid: np.ndarray) -> tuple[np.ndarray, ...]:
+    """For each (t, j): the two nearest valid frames before t and after t (−1 / T: none)."""
+    T = len(valid)
+    idx = np.where(valid, np.arange(T)[:, None], -1)
+    before1 = np.maximum.accumulate(np.vstack([np.full((1, idx.shape[1]), -1), idx[:-1]]), 0)   # last valid < t
+    ridx = np.where(valid, np.arange(T)[:, None], T)[::-1]
+    after1 = np.minimum.accumulate(np.vstack([np.full((1, idx.shape[1]), T), ridx[:-1]]), 0)[::-1]   # first valid > t
+    cols = np.arange(idx.shape[1])
+    before2 = np.where(before1 >= 0, before1[np.clip(before1, 0, T - 1), cols], -1)
+    after2 = np.where(after1 < T, after1[np.clip(after1, 0, T - 1), cols], T)
+    return before1, before2, after1, after2
 
-    def at(k):                                                                     # X_{t+k}, (T, J, 3)
-        return pad[2 + k:2 + k + T]
 
-    cands = np.stack([(at(-1) + at(1)) / 2, (at(-2) + at(2)) / 2, 2 * at(1) - at(2), 2 * at(-1) - at(-2)])
-    dist = np.linalg.norm(P[None] - cands, axis=-1)                                # (4, T, J)
-    near = np.where(np.isfinite(dist), dist, np.inf).min(0)
-    return (conf > 0) & np.isfinite(near) & (near > max_jump)
+def temporal_outliers(points: np.ndarray, conf: np.ndarray, max_jump: float, max_gap: int = 5) -> np.ndarray:
+    """(T, J) bool: triangulated points further than max_jump (m) from most predictions the
+    nearest valid frames make: linear interpolation between a frame before and one after
+    (the nearest two on each side, paired every way) and linear extrapolation from two frames
+    on one side, all within max_gap frames. Smooth motion is within ~a·gap²/8 (centimetres)
+    of them. An outlier among the neighbours spoils at most half of the predictions of a good
+    point; a bad point agrees with at most a few (a majority vote, not the nearest: the wrong
+    two-view points of one joint in consecutive frames often lie on one camera ray, so a
+    prediction through a wrong neighbour can land on a wrong point)."""
+    T = len(points)
+    valid = conf > 0
+    b1, b2, a1, a2 = _nearest_valid(valid)
+    cols = np.arange(points.shape[1])[None]
+    t = np.arange(T)[:, None].astype(float)
+
+    def line(i, k, ok):
+        """Points on the line through frames i and k (T, J) evaluated at t; NaN where not ok."""
+        ii, kk = np.clip(i, 0, T - 1), np.clip(k, 0, T - 1)
+        Pi, Pk = points[ii, cols], points[kk, cols]                               # (T, J, 3)
+        s = ((t - ii) / np.where(kk != ii, kk - ii, 1))[..., None]
+        return np.where(ok[..., None], Pi + s * (Pk - Pi), np.nan)
+
+    def near(i):
+        return (i >= 0) & (i < T) & (np.abs(i - t) <= max_gap)
+
+    cands = [line(i, k, near(i) & near(k)) for i in (b1, b2) for k in (a1, a2)]     # interpolations
+    cands += [line(b1, b2, near(b1) & near(b2)), line(a1, a2, near(a1) & near(a2))]  # extrapolations
+    dist = np.linalg.norm(points[None] - np.stack(cands), axis=-1)                # (6, T, J)
+    available = np.isfinite(dist).sum(0)
+    agree = (dist <= max_jump).sum(0)                                             # NaN compares False
+    return valid & (available > 0) & (2 * agree < available)
 
 
 def triangulate(cams: Cameras, uv: np.ndarray, conf: np.ndarray, min_views: int = 2,
