@@ -76,7 +76,8 @@ def main() -> None:
     if a.compare_frames:
         small = make_rig(bm, T=a.compare_frames, cameras=a.cameras, noise_px=a.noise_px, drop=a.drop,
                          outliers=a.outliers, seed=8)
-        for name, reject in (("consensus + temporal check", (cfg.reject_px, cfg.max_jump)), ("plain weighted DLT", (None, None))):
+        for name, reject in (("consensus + temporal check", (cfg.reject_px, cfg.max_jump)),
+                             ("plain weighted DLT", (None, None))):
             tri = triangulate(small.cams, small.uv, small.conf, 2, *reject)
             ok = tri.conf > 0
             e = np.linalg.norm(tri.points - small.joints, axis=-1)[ok]

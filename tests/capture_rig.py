@@ -76,7 +76,8 @@ def make_rig(bm: BodyModel, T: int = 60, cameras: int = 4, noise_px: float = 1.5
     rng = np.random.default_rng(seed + 1000)
     p = rig_motion(bm, T, seed)
     with torch.no_grad():
-        J = bm.joints(*(torch.as_tensor(p[k]) for k in ("global_orient", "body_pose", "transl", "betas"))).double().numpy()
+        J = bm.joints(*(torch.as_tensor(p[k]) for k in ("global_orient", "body_pose", "transl", "betas")))
+    J = J.double().numpy()                                                      # (T, 22, 3)
     cams = look_at_cameras(J[:, 0].mean(0), cameras, rng=rng)
     clean, depth = cams.project_np(J)                                          # (T, 22, C, 2)
     clean = clean.transpose(2, 0, 1, 3)                                        # (C, T, 22, 2)

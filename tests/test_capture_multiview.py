@@ -2,16 +2,16 @@
 prior, the objective, and the three-stage fit on a rig with a known answer (capture_rig.py)."""
 
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
+from capture_rig import look_at_cameras, make_rig  # tests/ is on sys.path under pytest
+
 from motiongen.body.model import load_body_model
-from motiongen.capture.cameras import Cameras, load_cameras, save_cameras
+from motiongen.capture.cameras import load_cameras, save_cameras
 from motiongen.capture.keypoints import layout_to_joints, load_keypoints2d, load_keypoints3d, to_body_joints
 from motiongen.capture.multiview import MultiviewConfig, fit_multiview, root_init
 from motiongen.capture.objective import SEED_STAGES, Targets, geman_mcclure, terms
@@ -19,11 +19,6 @@ from motiongen.capture.pose_prior import default_prior, fit_prior, load_prior
 from motiongen.capture.triangulate import temporal_outliers, triangulate
 from motiongen.errors import ConfigError, DataError
 from motiongen.skeleton import BODY_JOINT_NAMES
-
-sys.path.insert(0, str(Path(__file__).parent))
-from capture_rig import look_at_cameras, make_rig  # noqa: E402
-
-FAST = MultiviewConfig(steps=(60, 40, 60))
 
 
 @pytest.fixture(scope="module")
@@ -79,8 +74,8 @@ def test_camera_files_round_trip_and_world_conventions(tmp_path, cams):
     assert np.allclose(zc.project_np(X)[0], cams.project_np(X)[0], atol=1e-6)
     assert np.allclose(zc.file_points_to_world(X @ y_to_z.T * 1000), X)
     # npz layout with Rodrigues vectors
-    np.savez(tmp_path / "c.npz", K=cams.K, rvec=Rotation.from_matrix(cams.R).as_rotvec(), t=cams.t, dist=cams.dist[:, :4],
-             names=np.array(cams.names))
+    np.savez(tmp_path / "c.npz", K=cams.K, rvec=Rotation.from_matrix(cams.R).as_rotvec(), t=cams.t,
+             dist=cams.dist[:, :4], names=np.array(cams.names))
     n = load_cameras(tmp_path / "c.npz")
     assert n.names == cams.names and np.allclose(n.project_np(X)[0], cams.project_np(X)[0], atol=1e-6)
 
@@ -287,10 +282,11 @@ def test_fit_recovers_the_rig_within_2cm_across_chunks(bm):
     err = np.linalg.norm(res.joints - rig.joints, axis=-1)                      # (T, 22)
     assert err.mean() < 0.02 and err.mean(1).max() < 0.03
     assert np.nanmedian(res.err2d) < 4.0                                          # pixels (noise 1.5 px)
-    # continuity at the chunk border (frame 20): its acceleration is like the others'
+    # continuity at the chunk border (frames 19 | 20): its acceleration is like the others'
+    # (the true motion's is even there). Measured 2.1x the median; without the previous chunk's
+    # frames in the smoothness term 4.4x.
     acc = np.linalg.norm(res.joints[2:] - 2 * res.joints[1:-1] + res.joints[:-2], axis=-1).mean(1)   # (T-2,)
-    true_acc = np.linalg.norm(rig.joints[2:] - 2 * rig.joints[1:-1] + rig.joints[:-2], axis=-1).mean(1)
-    assert acc[18:20].max() < 3 * np.median(acc) + 2 * true_acc.max()
+    assert acc[18:20].max() < 3 * np.median(acc)
     assert set(res.stage_losses) == {1, 2, 3} and res.stage_losses[1]["L2D"] == 0 < res.stage_losses[3]["L2D"]
 
 
@@ -302,9 +298,9 @@ def test_geman_mcclure_beats_plain_l2_with_10_percent_outliers(bm):
     for robust in ("gm", "l2"):
         res = fit_multiview(bm, rig.cams, rig.uv, rig.conf, default_prior(), MultiviewConfig(robust=robust))
         errs[robust] = mpjpe(res.joints, rig.joints)
-    # measured 0.51 vs 0.70 cm (seeds 1-5: GM better by 4-38 %, docs/capture.md)
+    # measured 0.42 vs 1.46 cm (100-frame rigs, seeds 1-5: 0.34-0.56 vs 1.18-1.23 cm, docs/capture.md)
     assert errs["gm"] < 0.02
-    assert errs["gm"] < 0.85 * errs["l2"], errs
+    assert errs["gm"] < 0.5 * errs["l2"], errs
 
 
 def test_fit_rejects_wrong_shapes(bm, cams):
@@ -362,7 +358,8 @@ def test_cli_end_to_end_coco_layout(tmp_path, bm):
     assert err[:, coco_joints].mean() < 0.02                                      # the 12 observed joints
     assert err.mean() < 0.05                                                      # spine, head, feet: prior only
     e = np.load(out / "errors.npz")
-    assert e["err3d"].shape == (30, 22) and e["err2d"].shape == (5, 30, 22) and list(e["camera_names"]) == rig.cams.names
+    assert e["err3d"].shape == (30, 22) and e["err2d"].shape == (5, 30, 22)
+    assert list(e["camera_names"]) == rig.cams.names
     assert np.isnan(e["err3d"][:, BODY_JOINT_NAMES.index("spine2")]).all()        # no target there
     assert np.nanmedian(e["err2d"]) < 3.0
     acc = EventAccumulator(str(out / "tb"))

@@ -48,7 +48,8 @@ def config_from(opts: dict) -> MultiviewConfig:
     cfg = MultiviewConfig(length_unit=opts["length_unit"], rho=opts["rho"], robust=opts["robust"],
                           stage1_frames=opts["stage1_frames"], chunk=opts["chunk"],
                           steps=(opts["steps1"], opts["steps2"], opts["steps3"]), init_pose=opts["init_pose"],
-                          init_smooth=opts["init_smooth"], reject_px=opts["reject_px"] or None, max_jump=opts["max_jump"] or None,
+                          init_smooth=opts["init_smooth"], reject_px=opts["reject_px"] or None,
+                          max_jump=opts["max_jump"] or None,
                           min_views=opts["min_views"], threads=opts["threads"])
     cfg.check()
     return cfg
@@ -106,7 +107,8 @@ def run(argv: list[str]) -> dict:
     frame_err = nanmean(res.err3d, 1)                                                # (T,)
     fit = FitResult(global_orient=res.global_orient, body_pose=res.body_pose, transl=res.transl, betas=res.betas,
                     joints=res.joints, per_frame_error=frame_err, mpjpe_mlp=None, mpjpe_init=res.err3d_init,
-                    mpjpe=float(nanmean(res.err3d.reshape(-1), 0)), steps=sum(res.evaluations.values()), seconds=seconds,
+                    mpjpe=float(nanmean(res.err3d.reshape(-1), 0)), steps=sum(res.evaluations.values()),
+                    seconds=seconds,
                     init=f"multiview/{cfg.init_pose}")
     staged = StagedOutputs(out)
     try:
@@ -134,11 +136,10 @@ def run(argv: list[str]) -> dict:
     except BaseException:
         staged.abort()
         raise
-    e3 = report["err3d_cm"]
+    e3, e2 = report["err3d_cm"], _summary(res.err2d, 1.0)
     print(f"{T} frames x {len(cams)} cameras ({obs.layout}, 3D {report['keypoints3d']}): 3D error to targets "
-          f"{e3['mean']} cm mean (after init {report['err3d_init_cm']} cm), 2D median "
-          f"{np.nanmedian(res.err2d):.2f} px; {seconds:.1f} s ({report['frames_per_second']} frames/s) -> {out}",
-          flush=True)
+          f"{e3['mean']} cm mean (after the start {report['err3d_init_cm']} cm), 2D median {e2['median']} px; "
+          f"{seconds:.1f} s ({report['frames_per_second']} frames/s) -> {out}", flush=True)
     return report
 
 

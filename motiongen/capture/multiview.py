@@ -29,7 +29,7 @@ from motiongen.body.rotations import axis_angle_to_matrix, matrix_to_axis_angle,
 from motiongen.capture.cameras import Cameras
 from motiongen.capture.objective import SEED_STAGES, StageWeights, Targets, terms, total
 from motiongen.capture.pose_prior import PosePrior
-from motiongen.errors import ConfigError, DataError
+from motiongen.errors import ConfigError
 from motiongen.skeleton import BODY_JOINT_NAMES, NUM_BODY_JOINTS
 
 ROOT_JOINTS = tuple(BODY_JOINT_NAMES.index(n) for n in ("left_shoulder", "right_shoulder", "left_hip", "right_hip"))
@@ -47,7 +47,7 @@ class MultiviewConfig:
     init_pose: str = "analytic"       # "analytic" (IK to the 3D targets) | "mean" (the seed: z = 0)
     init_smooth: float = 2.0          # frames: Gaussian smoothing of the targets the IK starts from
     reject_px: float | None = 30.0    # triangulation: views reprojecting further are outliers
-    max_jump: float | None = 0.1      # triangulation: metres from the ±2-frame median -> dropped
+    max_jump: float | None = 0.1      # triangulation: metres from the neighbours' predictions -> dropped
     min_views: int = 2
     threads: int = 1                  # torch intra-op threads (small tensors: 1 is fastest)
 
@@ -75,7 +75,7 @@ class MultiviewResult:
     err3d: np.ndarray                 # (T, 22) metres to the targets (NaN where no target)
     err2d: np.ndarray                 # (C, T, 22) pixels to the detections (NaN where none)
     err3d_init: float = float("nan")  # metres: mean distance to the targets after initialisation
-    stage_losses: dict = field(default_factory=dict)   # stage -> final weighted terms (mean over chunks)
+    stage_losses: dict = field(default_factory=dict)   # stage -> final terms and weighted total (mean over chunks)
     evaluations: dict = field(default_factory=dict)    # stage -> loss evaluations
     seconds: dict = field(default_factory=dict)        # stage -> wall seconds ("triangulate" too)
 
@@ -86,7 +86,7 @@ class _Logger:
     def __init__(self, writer):
         self.writer, self.step, self.last = writer, {}, {}
 
-    def log(self, stage: int, t: dict, tot: float, w: StageWeights) -> None:
+    def log(self, stage: int, t: dict, tot: float) -> None:
         s = self.step.get(stage, 0)
         self.step[stage] = s + 1
         vals = {k: float(v.detach()) for k, v in t.items()}
@@ -116,7 +116,8 @@ def root_init(bm: BodyModel, x3d: np.ndarray, w3d: np.ndarray, betas=None) -> tu
         rot, _ = Rotation.align_vectors(b - cb, a - ca, weights=ww)
         Rs[t], ts[t], ok[t] = rot.as_matrix(), cb - rot.apply(ca), True
     if not ok.any():
-        raise DataError("keypoints", None, "the shoulders and hips are never seen in two views: no frame to start from")
+        raise ConfigError("keypoints: the shoulders and hips are never seen in two views (or given in 3D): "
+                          "no frame to start the fit from")
     good = np.flatnonzero(ok)
     if not ok.all():
         tt = np.clip(np.arange(T), good[0], good[-1])
@@ -212,13 +213,13 @@ class MultiviewFitter:
                 t = loss_terms()
                 loss = total(t, w)
                 loss.backward()
-                self.log.log(stage, t, loss.item(), w)
+                self.log.log(stage, t, loss.item())
                 return loss
 
             opt.step(closure)
         with torch.no_grad():
             t = loss_terms()
-            self.log.log(stage, t, total(t, w).item(), w)
+            self.log.log(stage, t, total(t, w).item())
         return {k: v.detach() for k, v in p.items()}
 
     def targets(self, x3d, w3d, uv, w2d, keypoints, sl: slice, context) -> Targets:
@@ -270,7 +271,8 @@ def fit_multiview(bm: BodyModel, cams: Cameras, uv: np.ndarray, conf: np.ndarray
         raise ConfigError(f"detections: expected uv ({len(cams)}, T, {NUM_BODY_JOINTS}, 2) and conf (C, T, "
                           f"{NUM_BODY_JOINTS}), got {uv.shape} and {conf.shape}")
     C, T = conf.shape[:2]
-    if x3d is not None and (x3d.shape != (T, NUM_BODY_JOINTS, 3) or conf3d is None or conf3d.shape != (T, NUM_BODY_JOINTS)):
+    if x3d is not None and (x3d.shape != (T, NUM_BODY_JOINTS, 3) or conf3d is None
+                            or conf3d.shape != (T, NUM_BODY_JOINTS)):
         raise ConfigError(f"3D keypoints: expected ({T}, {NUM_BODY_JOINTS}, 3) with conf3d ({T}, {NUM_BODY_JOINTS})")
     seconds = {}
     t0 = time.time()
@@ -312,7 +314,8 @@ def fit_multiview(bm: BodyModel, cams: Cameras, uv: np.ndarray, conf: np.ndarray
     losses = {s: {k: float(np.mean([f[k] for f in v])) for k in v[0]} for s, v in finals.items()}
     return MultiviewResult(
         global_orient=matrix_to_axis_angle(R_root).double().cpu().numpy(),
-        body_pose=theta.reshape(T, 63).double().cpu().numpy(), transl=state["transl"].double().cpu().numpy() * cfg.length_unit,
+        body_pose=theta.reshape(T, 63).double().cpu().numpy(),
+        transl=state["transl"].double().cpu().numpy() * cfg.length_unit,
         betas=state["betas"].double().cpu().numpy(), z=state["z"].double().cpu().numpy(), joints=J_np,
         x3d=x3d, conf3d=conf3d, err3d=err3d, err2d=err2d, err3d_init=init_err, stage_losses=losses,
         evaluations=dict(fitter.log.step), seconds=seconds)

@@ -5,7 +5,8 @@
     L3D = 1/(TK) Σ_t Σ_k w_tk ‖x_tk − x̂_tk‖                   Euclidean, not squared
     L2D = 1/(TKC) Σ_t Σ_k Σ_c w_tkc φ(‖x_tkc − Π_c(x̂_tk)‖; ρ_tkc),  φ(r; ρ) = r² / (r² + ρ²)
     Lz  = 1/T Σ_t ‖z_t‖²,    Lβ = ‖β‖²
-    Lsmooth = 1/((T−2)K) Σ ‖x̂_t − 2x̂_{t+1} + x̂_{t+2}‖² + 1/((T−2)J) Σ ‖θ_t − 2θ_{t+1} + θ_{t+2}‖²
+    Lsmooth = 1/((T−2)K) Σ ‖x̂_t − 2x̂_{t+1} + x̂_{t+2}‖²
+            + 1/((T−2)J) Σ ‖θ_t − 2θ_{t+1} + θ_{t+2}‖²
 
 Our readings of what the seed leaves open (docs/capture.md gives the reasons and figures):
 - w are the detections' confidences (0 = missed / not triangulated); K counts the keypoints
