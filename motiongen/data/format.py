@@ -331,6 +331,14 @@ class MotionDataset:
             self._meshes[scene] = trimesh.load(self.root / entry["mesh"], force="mesh", process=False)
         return self._meshes[scene]
 
+    def vertex_contact(self):
+        """The optional per-vertex contact labels (``vertex_contact/``, written by
+        `motiongen.data.annotate_contact`) as a memory-mapped
+        `motiongen.data.contact_labels.VertexContact`, or None when the dataset has none."""
+        from motiongen.data.contact_labels import VertexContact
+
+        return VertexContact.open(self.root, self.num_frames, list(self.joint_set.names))
+
     def object_mesh(self, object_id: int):
         entry = self.objects.get(object_id) or {}
         if not entry.get("mesh"):
