@@ -108,7 +108,9 @@ class GridField(SurfaceField):
 
     Outside points: distance to the nearest occupied voxel centre that has a free 6-neighbour,
     less half a voxel; inside points: minus the distance to the nearest free voxel centre next
-    to an occupied one, less half a voxel. Direction: towards that voxel centre."""
+    to an occupied one, less half a voxel. The "nearest centre" is the mean of the centres
+    within half a voxel of the nearest one: in front of a flat face that is the foot of the
+    perpendicular, so the direction is the face normal rather than a voxel-staircase diagonal."""
 
     def __init__(self, grid: OccupancyGrid):
         occ = grid.dense()                                                        # (X, Y, Z) bool
@@ -129,14 +131,16 @@ class GridField(SurfaceField):
             if tree is None or not sel.any():
                 continue
             bound = max_distance + half + self.error if sign > 0 else np.inf
-            dist, idx = tree.query(p[sel], distance_upper_bound=bound)
-            ok = np.isfinite(dist)
+            dist, idx = tree.query(p[sel], k=8, distance_upper_bound=bound)          # (n, 8)
+            ok = np.isfinite(dist[:, 0])
             rows = np.flatnonzero(sel)[ok]
-            c = tree.data[idx[ok]]
+            dist, idx = dist[ok], idx[ok]
+            tie = dist <= dist[:, :1] + half                                           # (n, 8), inf never
+            c = (tree.data[np.minimum(idx, tree.n - 1)] * tie[..., None]).sum(1) / tie.sum(1, keepdims=True)
             v = c - p[rows]
             n = np.linalg.norm(v, axis=-1, keepdims=True)
             u[rows] = v / np.maximum(n, 1e-12)
-            d[rows] = sign * np.maximum(dist[ok] - half, 0.0)
+            d[rows] = sign * np.maximum(n[:, 0] - half, 0.0)
         if self._free is None:            # the whole grid is occupied: depth unknown, at least half a voxel
             d[inside] = -half
         return d, u
