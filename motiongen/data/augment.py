@@ -29,13 +29,13 @@ import numpy as np
 from motiongen.body.model import BodyModel, load_body_model
 from motiongen.cli import parse_key_values, user_errors_exit_2
 from motiongen.data import augment_objects as edits
-from motiongen.data.annotate_contact import SurfaceBank, annotate_dataset, annotate_frames
+from motiongen.data.annotate_contact import OBJECT_VOXEL, SurfaceBank, annotate_dataset, annotate_frames
 from motiongen.data.augment_body import contact_points, contact_runs, initial_body, retarget, solve_body
 from motiongen.data.contact import BodySurface, ContactConfig
-from motiongen.data.contact_labels import VertexContactWriter
+from motiongen.data.contact_labels import VertexContact, VertexContactWriter
 from motiongen.data.distance_field import MeshField
-from motiongen.data.format import SMPLX_FIELDS, DatasetWriter, MotionDataset
-from motiongen.errors import ConfigError
+from motiongen.data.format import SMPLX_FIELDS, DatasetWriter, MotionDataset, Sequence
+from motiongen.errors import ConfigError, DataError
 from motiongen.eval.metrics import bone_consistency
 from motiongen.data.representation import stance_labels
 from motiongen.skeleton import FOOT_JOINTS, NUM_BODY_JOINTS
@@ -96,6 +96,86 @@ def _edit(rng, cfg: AugmentConfig, ds: MotionDataset, bank: SurfaceBank, scene_f
     return None
 
 
+@dataclass
+class AugmentContext:
+    """What augmenting the sequences of one dataset needs (built once by `augment_dataset`)."""
+
+    ds: MotionDataset
+    labels: VertexContact
+    bm: BodyModel
+    body: BodySurface
+    bank: SurfaceBank
+    cfg: AugmentConfig
+
+
+@dataclass
+class AugmentedSequence:
+    joints: np.ndarray           # (T, J, 3) float32
+    contact: np.ndarray          # (T, J) bool
+    object_ids: np.ndarray       # (T, K) int32, the edited object under its new id
+    object_poses: np.ndarray     # (T, K, 4, 4) float32
+    smplx: dict | None           # the solved body {field: (T, d) / (10,)}; None when unchanged
+    labels: list                 # per frame batch: (target, distance, joints, penetration, penetrating)
+    changed: bool                # False: no joint touches the edited object, the motion is the source's
+    stats: dict
+
+
+def object_track(ds: MotionDataset, seq: Sequence, object_id: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where an object is in a sequence: (slots (frames, slots) as from np.where, poses (T, 4, 4)
+    with the identity in frames without it)."""
+    ids = np.asarray(ds.object_ids[seq.start:seq.end])
+    slot_of = np.where(ids == object_id)
+    poses = np.broadcast_to(np.eye(4), (seq.num_frames, 4, 4)).copy()
+    poses[slot_of[0]] = np.asarray(ds.object_poses[seq.start:seq.end])[slot_of]
+    return slot_of, poses
+
+
+def augment_sequence(ctx: AugmentContext, seq: Sequence, edit: edits.ObjectEdit, new_id: int) -> AugmentedSequence:
+    """One sequence with one object edited (its new id `new_id`): joints touching it follow
+    their contact points (Eq. A1-A6), one body is solved through the new targets, and the
+    contact labels are recomputed on that body against the new object. A sequence in which no
+    joint touches the object comes back unchanged (joints bitwise; only the object changes)."""
+    ds, cfg, s, e = ctx.ds, ctx.cfg, seq.start, seq.end
+    oid = edit.object_id
+    jt = np.asarray(ctx.labels.joints[s:e])                                             # (T, J)
+    ids = np.asarray(ds.object_ids[s:e])
+    slot_of, poses = object_track(ds, seq, oid)
+    new_ids = np.where(ids == oid, new_id, ids).astype(np.int32)
+    new_poses = np.asarray(ds.object_poses[s:e], np.float64).copy()
+    new_poses[slot_of] = edit.poses(new_poses[slot_of])
+    joints = np.asarray(ds.joints[s:e], np.float64)
+    contact = np.asarray(ds.contact[s:e])
+    runs = contact_runs(jt, oid, cfg.min_contact_frames)
+    if not runs:
+        return AugmentedSequence(np.asarray(ds.joints[s:e]).copy(), contact, new_ids, new_poses.astype(np.float32),
+                                 None, [], False, {})
+    targets = ctx.bank.targets(seq.scene, ids)
+    params = {k: np.asarray(v[s:e]) for k, v in (ctx.labels.smplx or ds.smplx).items()}
+    pts = {(j, a): contact_points(ctx.labels, ctx.body, params, s, j, (a, b), oid, targets.objects[oid], poses[a:b])
+           for j, rs in runs.items() for a, b in rs}
+    rt = retarget(joints, runs, pts, edit, poses, cfg.window)
+    start = initial_body(ctx.bm, ds.joint_set, joints, params)
+    planted = stance_labels(joints, contact, FOOT_JOINTS, ds.fps)
+    motion = solve_body(ctx.bm, ds.joint_set, rt, start, planted, cfg.ik_steps)
+    # labels of the new sequence: the solved body against the edited object
+    targets.add_object(new_id, MeshField(edit.mesh, voxel_size=min(cfg.contact.voxel_size, OBJECT_VOXEL)),
+                       np.asarray(edit.mesh.vertices, np.float64))
+    new_params = {"global_orient": motion.global_orient, "body_pose": motion.body_pose,
+                  "transl": motion.transl, "betas": _betas(motion.betas)}
+    labels = []
+    for a in range(0, seq.num_frames, cfg.contact.batch_frames):
+        fr = slice(a, min(a + cfg.contact.batch_frames, seq.num_frames))
+        labels.append(annotate_frames(ctx.body, new_params, targets, new_ids, new_poses, cfg.contact, fr))
+    new_jt = np.concatenate([lab[2] for lab in labels])
+    # joints the edit moved (not the fit: the body model's skeleton is not the data's) get the
+    # new labels' "touches something"; the others keep the source's contact labels
+    moved = np.linalg.norm(motion.joints - start.joints, axis=-1) > MOVED               # (T, J)
+    new_contact = np.where(moved, new_jt != -1, contact)
+    stats = _sequence_stats(rt, motion.joints, joints, start.joints, jt, new_jt, oid, new_id, ds.joint_set.parents)
+    return AugmentedSequence(motion.joints.astype(np.float32), new_contact, new_ids, new_poses.astype(np.float32),
+                             new_params, labels, rt.changed, stats)
+
+
 def augment_dataset(root: str | Path, out: str | Path, cfg: AugmentConfig = AugmentConfig(),
                     body_model: BodyModel | str | None = None, object_meshes: str | Path | None = None,
                     overwrite: bool = False, progress: bool = True) -> AugmentResult:
@@ -107,94 +187,62 @@ def augment_dataset(root: str | Path, out: str | Path, cfg: AugmentConfig = Augm
     ds = MotionDataset.open(root)
     if ds.object_ids is None:
         raise ConfigError(f"{ds.root}: the dataset has no objects to augment (num_object_slots = 0)")
+    if Path(out).exists() and not overwrite:
+        raise DataError(out, None, "output directory already exists (pass overwrite=true)")
     labels = ds.vertex_contact()
     if labels is None:
         log(f"augment: {ds.root} has no per-vertex contact labels; annotating it first")
         annotate_dataset(ds.root, cfg.contact, bm, object_meshes, progress=progress)
         labels = ds.vertex_contact()
-    body = BodySurface(bm, ds.joint_set)
-    bank = SurfaceBank(ds, cfg.contact, object_meshes)
+    ctx = AugmentContext(ds, labels, bm, BodySurface(bm, ds.joint_set), SurfaceBank(ds, cfg.contact, object_meshes), cfg)
     seqs = ds.split_sequences(cfg.split)
     next_id = max(ds.objects, default=-1) + 1
     writer = DatasetWriter(out, ds.joint_set, ds.action_names, ds.fps, ds.meta["num_object_slots"],
                            has_smplx=ds.smplx is not None, overwrite=overwrite)
     vc_writer = None
     skipped: dict[str, int] = {}
-    stats: list[dict] = []
-    records, used_objects, used_scenes = [], set(), set()
+    records, stats, used_objects, used_scenes = [], [], set(), set()
     try:
-        vc_writer = VertexContactWriter(writer.tmp, body.num_vertices, ds.joint_set.num_joints,
+        vc_writer = VertexContactWriter(writer.tmp, ctx.body.num_vertices, ds.joint_set.num_joints,
                                         smplx=ds.smplx is None)
         for si, seq in enumerate(seqs):
-            s, e = seq.start, seq.end
-            jt = np.asarray(labels.joints[s:e])                                        # (T, J)
-            ids = np.asarray(ds.object_ids[s:e])
+            jt = np.asarray(labels.joints[seq.start:seq.end])                         # (T, J)
             touched = [o for o in np.unique(jt[jt >= 0]).tolist()
-                       if o in ds.objects and bank.object_mesh(o) is not None
+                       if o in ds.objects and ctx.bank.object_mesh(o) is not None
                        and contact_runs(jt, o, cfg.min_contact_frames)]
             if not touched:
                 skipped["no object contact"] = skipped.get("no object contact", 0) + cfg.copies
                 continue
-            targets = bank.targets(seq.scene, ids)
-            params = {k: np.asarray(v[s:e]) for k, v in (labels.smplx or ds.smplx).items()}
             for k in range(cfg.copies):
                 rng = np.random.default_rng([cfg.seed, si, k])
                 oid = int(rng.choice(touched))
-                slot_of = np.where(ids == oid)                                         # (frames, slots)
-                poses = np.broadcast_to(np.eye(4), (seq.num_frames, 4, 4)).copy()
-                poses[slot_of[0]] = np.asarray(ds.object_poses[s:e])[slot_of]
-                edit = _edit(rng, cfg, ds, bank, targets.scene, oid, poses[slot_of[0][0]])
+                slot_of, poses = object_track(ds, seq, oid)
+                edit = _edit(rng, cfg, ds, ctx.bank, ctx.bank.scene_field(seq.scene), oid, poses[slot_of[0][0]])
                 if edit is None:
                     skipped["no possible edit"] = skipped.get("no possible edit", 0) + 1
                     continue
-                runs = contact_runs(jt, oid, cfg.min_contact_frames)
-                fld = targets.objects[oid]
-                pts = {(j, a): contact_points(labels, body, params, s, j, (a, b), oid, fld, poses[a:b])
-                       for j, rs in runs.items() for a, b in rs}
-                joints = np.asarray(ds.joints[s:e], np.float64)
-                rt = retarget(joints, runs, pts, edit, poses, cfg.window)
-                start = initial_body(bm, ds.joint_set, joints, params)
-                contact = np.asarray(ds.contact[s:e])
-                planted = stance_labels(joints, contact, FOOT_JOINTS, ds.fps)
-                motion = solve_body(bm, ds.joint_set, rt, start, planted, cfg.ik_steps)
                 new_id, next_id = next_id, next_id + 1
-                new_ids = np.where(ids == oid, new_id, ids).astype(np.int32)
-                new_poses = np.asarray(ds.object_poses[s:e], np.float64).copy()
-                new_poses[slot_of] = edit.poses(new_poses[slot_of])
-                # labels of the new sequence, on the solved body, against the edited object
-                targets.add_object(new_id, MeshField(edit.mesh, voxel_size=min(cfg.contact.voxel_size, 0.01)),
-                                   np.asarray(edit.mesh.vertices, np.float64))
-                new_params = {"global_orient": motion.global_orient, "body_pose": motion.body_pose,
-                              "transl": motion.transl, "betas": _betas(motion.betas)}
-                new_jt = []
-                for a in range(0, seq.num_frames, cfg.contact.batch_frames):
-                    fr = slice(a, min(a + cfg.contact.batch_frames, seq.num_frames))
-                    tgt, dist, jts, pen, n = annotate_frames(body, new_params, targets, new_ids, new_poses,
-                                                             cfg.contact, fr)
-                    vc_writer.add(tgt, dist, jts, pen, n, smplx={k2: (v if v.ndim == 1 else v[fr])
-                                                                 for k2, v in new_params.items()})
-                    new_jt.append(jts)
-                new_jt = np.concatenate(new_jt)
-                # joints the edit moved (not the fit: the body model's skeleton is not the data's)
-                moved = np.linalg.norm(motion.joints - start.joints, axis=-1) > MOVED       # (T, J)
-                new_contact = np.where(moved, new_jt != -1, contact)
+                a = augment_sequence(ctx, seq, edit, new_id)
+                o = 0
+                for lab in a.labels:                       # the labels' body: the solved one
+                    n = len(lab[0])
+                    body = {k2: v if v.ndim == 1 else v[o:o + n] for k2, v in a.smplx.items()}
+                    vc_writer.add(*lab, smplx=body if ds.smplx is None else None)
+                    o += n
                 name = f"{seq.name}~aug{k}"
                 src_obj = ds.objects[oid]
                 writer.add_object(new_id, name=f"{src_obj['name']}~{edit.op}{new_id}", type=src_obj.get("type", ""),
                                   mesh=edit.mesh)
-                writer.add_sequence(name, seq.scene, motion.joints, np.asarray(ds.actions[s:e]), new_contact,
-                                    new_poses.astype(np.float32), new_ids,
-                                    smplx=new_params if ds.smplx is not None else None)
+                writer.add_sequence(name, seq.scene, a.joints, np.asarray(ds.actions[seq.start:seq.end]), a.contact,
+                                    a.object_poses, a.object_ids, smplx=a.smplx if ds.smplx is not None else None)
                 used_scenes.add(seq.scene)
-                used_objects.update(int(o) for o in np.unique(new_ids) if o >= 0 and o != new_id)
-                st = _sequence_stats(rt, motion.joints, joints, start.joints, jt, new_jt, oid, new_id,
-                                     ds.joint_set.parents)
-                stats.append(st)
+                used_objects.update(int(o) for o in np.unique(a.object_ids) if o >= 0 and o != new_id)
+                stats.append(a.stats)
                 records.append({"name": name, "source": seq.name, "object": int(oid), "new_object": new_id,
-                                "op": edit.op, **edit.params, **{k2: round(v, 5) for k2, v in st.items()}})
+                                "op": edit.op, **edit.params, **{k2: round(v, 5) for k2, v in a.stats.items()}})
                 log(f"augment: {len(records)} {name}: {edit.op} {src_obj['name']} {edit.params} "
-                    f"(target error {100 * st['target_error_m']:.2f} cm, contact kept "
-                    f"{100 * st['contact_kept']:.0f} %, {time.perf_counter() - t0:.0f} s)")
+                    f"(target error {100 * a.stats['target_error_m']:.2f} cm, contact kept "
+                    f"{100 * a.stats['contact_kept']:.0f} %, {time.perf_counter() - t0:.0f} s)")
         if not records:
             raise ConfigError(f"{ds.root}: no augmented sequence could be made from split {cfg.split!r} "
                               f"({', '.join(f'{k}: {v}' for k, v in skipped.items()) or 'no sequences'})")
@@ -204,7 +252,7 @@ def augment_dataset(root: str | Path, out: str | Path, cfg: AugmentConfig = Augm
                              name=entry.get("name"))
         for oid in sorted(used_objects):
             entry = ds.objects.get(oid, {"name": f"object_{oid}", "type": ""})
-            writer.add_object(oid, name=entry["name"], type=entry.get("type", ""), mesh=bank.object_mesh(oid))
+            writer.add_object(oid, name=entry["name"], type=entry.get("type", ""), mesh=ctx.bank.object_mesh(oid))
         seconds = time.perf_counter() - t0
         summary = {k2: float(np.mean([s_[k2] for s_ in stats])) for k2 in stats[0]}
         vc_writer.finish({"joint_names": list(ds.joint_set.names), "config": asdict(cfg.contact),
