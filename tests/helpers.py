@@ -109,8 +109,9 @@ def write_posed_release(root: Path, mesh_dir: Path | None = None, grid: GridSpec
     pose, standing on the floor at x = -1, z = 1.5), joints = their kinematics (body + index1),
     and every present object pose rigid. In seqA object type 3 (`object_03`) is a box standing on
     the floor under the left hand, whose palm rests 3 mm above its top in frames HOLD and is lifted
-    (shoulder raised) elsewhere. mesh_dir: gets object_03.ply, object_17.ply and object_34.ply
-    (boxes, local frames centred on the origin). Returns the arrays written, with "box_height"."""
+    (shoulder raised) elsewhere. mesh_dir: gets object_03.ply (that box), object_17.ply (a box 10 %
+    lower) and object_34.ply (boxes, local frames centred on the origin; all of type "object").
+    Returns the arrays written, with "box_height"."""
     import torch
     import trimesh
 
@@ -154,8 +155,8 @@ def write_posed_release(root: Path, mesh_dir: Path | None = None, grid: GridSpec
     if mesh_dir is not None:
         mesh_dir.mkdir(parents=True, exist_ok=True)
         trimesh.creation.box(extents=(0.3, h, 0.3)).export(mesh_dir / "object_03.ply")
-        for name in ("object_17", "object_34"):
-            trimesh.creation.box(extents=(0.2, 0.2, 0.2)).export(mesh_dir / f"{name}.ply")
+        trimesh.creation.box(extents=(0.25, 0.9 * h, 0.25)).export(mesh_dir / "object_17.ply")
+        trimesh.creation.box(extents=(0.2, 0.2, 0.2)).export(mesh_dir / "object_34.ply")
     arrays["box_height"] = h
     return arrays
 
