@@ -108,9 +108,9 @@ class GridField(SurfaceField):
 
     Outside points: distance to the nearest occupied voxel centre that has a free 6-neighbour,
     less half a voxel; inside points: minus the distance to the nearest free voxel centre next
-    to an occupied one, less half a voxel. The "nearest centre" is the mean of the centres
-    within half a voxel of the nearest one: in front of a flat face that is the foot of the
-    perpendicular, so the direction is the face normal rather than a voxel-staircase diagonal."""
+    to an occupied one, less half a voxel. The "nearest centre" is the mean of the centres that
+    are nearly as near and lie on the same side: in front of a flat face that is the foot of
+    the perpendicular, so the direction is the face normal rather than a staircase diagonal."""
 
     def __init__(self, grid: OccupancyGrid):
         occ = grid.dense()                                                        # (X, Y, Z) bool
@@ -121,22 +121,40 @@ class GridField(SurfaceField):
         free_surf = ~occ & ~ndimage.binary_erosion(~occ, border_value=1)
         self._occ = cKDTree(centres(surf)) if surf.any() else None
         self._free = cKDTree(centres(free_surf)) if free_surf.any() else None
+        self._surf = surf
+        self._near: dict[float, OccupancyGrid] = {}
+
+    def _near_grid(self, radius: float) -> OccupancyGrid:
+        """Voxels whose centre is within `radius` (+ a voxel diagonal) of a boundary voxel centre:
+        free points elsewhere are further than `radius` and skip the k-d tree."""
+        key = round(radius, 6)
+        if key not in self._near:
+            near = near_occupied(self._surf, radius / self.voxel_size + np.sqrt(3.0))
+            self._near[key] = OccupancyGrid.from_dense(near, self.grid.origin, self.voxel_size)
+        return self._near[key]
 
     def _local(self, p, max_distance):
         half = 0.5 * self.voxel_size
         inside = self.grid.occupied(p, outside=False)                             # (N,)
         d = np.full(len(p), np.inf)
         u = np.zeros_like(p)
-        for tree, sel, sign in ((self._occ, ~inside, 1.0), (self._free, inside, -1.0)):
+        outside = ~inside
+        if np.isfinite(max_distance) and self._occ is not None:
+            outside &= self._near_grid(max_distance + half).occupied(p, outside=True)   # off the grid: ask the tree
+        for tree, sel, sign in ((self._occ, outside, 1.0), (self._free, inside, -1.0)):
             if tree is None or not sel.any():
                 continue
             bound = max_distance + half + self.error if sign > 0 else np.inf
-            dist, idx = tree.query(p[sel], k=8, distance_upper_bound=bound)          # (n, 8)
+            dist, idx = tree.query(p[sel], k=12, distance_upper_bound=bound)         # (n, 12)
             ok = np.isfinite(dist[:, 0])
             rows = np.flatnonzero(sel)[ok]
             dist, idx = dist[ok], idx[ok]
-            tie = dist <= dist[:, :1] + half                                           # (n, 8), inf never
-            c = (tree.data[np.minimum(idx, tree.n - 1)] * tie[..., None]).sum(1) / tie.sum(1, keepdims=True)
+            to = tree.data[np.minimum(idx, tree.n - 1)] - p[rows, None]               # (n, 12, 3)
+            unit = to / np.maximum(np.linalg.norm(to, axis=-1, keepdims=True), 1e-12)
+            # near-ties (a ring round the foot of the perpendicular, whatever the staircase) on
+            # the nearest one's side: not across a medial axis, not round a corner
+            tie = (dist <= dist[:, :1] + half) & (np.einsum("nkc,nc->nk", unit, unit[:, 0]) >= 0.5)
+            c = p[rows] + (to * tie[..., None]).sum(1) / tie.sum(1, keepdims=True)
             v = c - p[rows]
             n = np.linalg.norm(v, axis=-1, keepdims=True)
             u[rows] = v / np.maximum(n, 1e-12)
