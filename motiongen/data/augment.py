@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -194,6 +194,9 @@ def augment_dataset(root: str | Path, out: str | Path, cfg: AugmentConfig = Augm
         log(f"augment: {ds.root} has no per-vertex contact labels; annotating it first")
         annotate_dataset(ds.root, cfg.contact, bm, object_meshes, progress=progress)
         labels = ds.vertex_contact()
+    known = {f.name for f in fields(ContactConfig)}
+    if isinstance(labels.info.get("config"), dict) and set(labels.info["config"]) == known:
+        cfg = replace(cfg, contact=ContactConfig(**labels.info["config"]))     # relabel as the source was labelled
     ctx = AugmentContext(ds, labels, bm, BodySurface(bm, ds.joint_set), SurfaceBank(ds, cfg.contact, object_meshes), cfg)
     seqs = ds.split_sequences(cfg.split)
     next_id = max(ds.objects, default=-1) + 1
