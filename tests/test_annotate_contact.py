@@ -228,7 +228,8 @@ def test_penetration_statistics_known_depth(rest_dataset):
 
 
 def test_old_dataset_has_no_labels_and_corrupt_labels_fail(rest_dataset, tmp_path):
-    assert MotionDataset.open(make_dataset(tmp_path / "plain", scenes=(1,), seqs_per_scene=1, T=10)).vertex_contact() is None
+    plain = make_dataset(tmp_path / "plain", scenes=(1,), seqs_per_scene=1, T=10)
+    assert MotionDataset.open(plain).vertex_contact() is None
     bad = tmp_path / "bad"
     shutil.copytree(rest_dataset, bad)
     np.save(bad / "vertex_contact" / "offsets.npy", np.zeros(3, np.int64))
