@@ -50,7 +50,8 @@ def double_of(ds):
     """The dataset with every sequence written twice (cached beside it)."""
     import numpy as np
 
-    from motiongen.data.format import DatasetWriter, MotionDataset
+    from motiongen.data.format import MotionDataset
+    from motiongen.data.dataset_writer import DatasetWriter
     from motiongen.data.occupancy import OccupancyGrid
 
     root = ds.root.with_name(ds.root.name + "-x2")

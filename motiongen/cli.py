@@ -47,6 +47,20 @@ def user_errors_exit_2(fn: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
+def tool_main(run: Callable[[list[str]], object], report: Callable[[object], None] | None = None) -> Callable:
+    """The `main(argv=None)` of a small tool: `run(argv)` (sys.argv[1:] by default), then
+    `report(result)`; a user error is one line and exit status 2 (`user_errors_exit_2`)."""
+
+    @user_errors_exit_2
+    def main(argv: list[str] | None = None) -> int:
+        result = run(sys.argv[1:] if argv is None else list(argv))
+        if report is not None:
+            report(result)
+        return 0
+
+    return main
+
+
 def check_hydra_overrides(argv: list[str] | None = None, config_name: str | None = None,
                           config_dir=None) -> None:
     """Exit 2 with one line if a command-line override of a Hydra script is malformed.

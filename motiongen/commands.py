@@ -23,6 +23,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "import-bvh": ("motiongen.data.import_bvh", "BVH files -> a motiongen dataset"),
     "import-amass": ("motiongen.data.import_amass", "AMASS-style SMPL-X / SMPL-H npz -> a motiongen dataset"),
     "import-trumans": ("motiongen.data.trumans", "the public TRUMANS release -> a motiongen dataset"),
+    "annotate-contact": ("motiongen.data.annotate_contact", "per-vertex body-scene/object contact labels for a dataset (B.6)"),
+    "augment": ("motiongen.data.augment", "contact-preserving augmentation: scale, swap, move objects (B.5)"),
     "fit-multiview": ("motiongen.capture.fit_multiview", "calibrated cameras + 2D keypoints -> SMPL-X motion (3 stages, seed 000)"),
     "pose-prior": ("motiongen.capture.pose_prior", "build the multi-view fit's PCA pose prior from a dataset or AMASS files"),
     "contact-sensors": ("motiongen.capture.contact_sensors", "force-sensor recordings -> per-frame joint contact (clap sync, thresholds)"),

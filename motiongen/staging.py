@@ -1,10 +1,29 @@
 """Outputs written under temp names and renamed into place together, so a failed run leaves
-nothing half-written in the output directory."""
+nothing half-written in the output directory; whole directories swapped in the same way."""
 
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
+
+
+def replace_dir(tmp: Path, final: Path) -> Path:
+    """Move the finished directory `tmp` to `final`, replacing what is there: the old one is
+    moved aside first and put back if the swap fails, so `final` is never left missing."""
+    tmp, final = Path(tmp), Path(final)
+    if final.exists():
+        old = final.with_name(final.name + f".old-{os.getpid()}")
+        os.replace(final, old)
+        try:
+            os.replace(tmp, final)
+        except BaseException:
+            os.replace(old, final)
+            raise
+        shutil.rmtree(old)
+    else:
+        os.replace(tmp, final)
+    return final
 
 
 class StagedOutputs:

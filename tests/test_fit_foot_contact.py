@@ -149,7 +149,7 @@ def test_fit_cli_foot_velocity_keys(tmp_path, capsys, sliding):
 def test_fit_cli_takes_contact_labels_from_a_dataset_sequence(tmp_path, sliding):
     """Labels in a dataset's contact.npy (written by `capture.contact_sensors` in use) pick the
     frames through `input=DATASET seq=NAME foot_vel.mask=contact`."""
-    from motiongen.data.format import DatasetWriter
+    from motiongen.data.dataset_writer import DatasetWriter
     from motiongen.skeleton import BODY
 
     T = len(sliding)

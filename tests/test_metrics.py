@@ -117,8 +117,10 @@ def test_surface_distance_box():
     off = sdf(np.array([[1.0, 2.5, 1.0], [-1.5, 0.25, 1.0], [1.0, 0.25, 3.5]]))
     np.testing.assert_allclose(off, [2.0, 2.0, 2.0], atol=0.02)
     # The floor half-space: a point 5 cm up, far from the box, is 5 cm from a surface.
-    assert grid.surface_distance(floor_y=0.0)(np.array([[0.2, 0.05, 0.2]]))[0] == pytest.approx(0.05)
-    assert sdf.floor_y is None                             # the kept field is unchanged
+    with_floor = grid.surface_distance(floor_y=0.0)
+    assert with_floor(np.array([[0.2, 0.05, 0.2]]))[0] == pytest.approx(0.05)
+    assert with_floor(np.array([[1.0, 0.7, 1.0]]))[0] == pytest.approx(0.2, abs=0.011)   # the box is nearer
+    assert sdf(np.array([[0.2, 0.05, 0.2]]))[0] > 0.2     # the kept field has no floor
     empty = OccupancyGrid.from_dense(np.zeros((4, 4, 4), bool), [0, 0, 0], 0.1).surface_distance()
     assert empty(np.zeros((1, 3)))[0] >= 100.0             # no surface at all: far
 

@@ -14,65 +14,14 @@ import numpy as np
 import pytest
 
 from motiongen.data.format import MotionDataset
-from motiongen.data.trumans import _ball_boxes, convert_trumans, main, near_occupied
-from motiongen.data.trumans_release import TRUMANS_ACTIONS, GridSpec, interpret_object_flags, scene_ids_from_names
+from motiongen.data.occupancy import _ball_boxes, near_occupied
+from motiongen.data.trumans import convert_trumans, main
+from motiongen.data.trumans_release import TRUMANS_ACTIONS, interpret_object_flags, scene_ids_from_names
 from motiongen.errors import ConfigError, DataError
+from tests.helpers import GRID, SCENE_FILES, SEQS, SMALL, write_fake_release
 
-GRID = GridSpec()
-SEQS = [("seqA", 40, 0), ("seqB", 30, 1), ("seqC", 50, 2)]   # name, frames, scene index
-SCENE_FILES = ["scene_003.npy", "scene_075.npy", "scene_095.npy"]  # ids 3 / 75 / 95: train / val / test
-TABLE_TOP = 0.74  # the table slab's top face (m), in scene 0 only
 FRAME_NAMES = ["human_joints", "human_orient", "idx_start", "action_label", "scene_flag", "object_flag",
                "object_mat", "seg_name", "frame_id", "human_pose", "human_transl"]
-
-
-SMALL = GridSpec(shape=(30, 10, 40), voxel_size=0.2)   # same extent, coarse: for tests that ignore grids
-
-
-def _voxel(p, grid):
-    return tuple(np.floor((np.asarray(p) - grid.origin) / grid.voxel_size).astype(int))
-
-
-def write_fake_release(root: Path, seed: int = 0, grid: GridSpec = GRID) -> dict:
-    """A release of 3 sequences (120 frames) in 3 scenes; returns the arrays written."""
-    rng = np.random.default_rng(seed)
-    root.mkdir(parents=True)
-    N = sum(t for _, t, _ in SEQS)
-    joints = np.empty((N, 24, 3), np.float32)
-    joints[..., 0] = rng.uniform(-2.5, 2.5, (N, 24))
-    joints[..., 1] = rng.uniform(0.3, 1.6, (N, 24))     # away from the floor...
-    joints[..., 2] = rng.uniform(-3.5, 3.5, (N, 24))
-    joints[:, 10, 1] = 0.02                              # ...except the left toe: floor contact
-    joints[:, 20] = (0.5, TABLE_TOP + 0.03, 0.5)          # left wrist 3 cm above the table (scene 0)
-    seg = np.concatenate([np.full(t, n) for n, t, _ in SEQS])
-    flag = np.concatenate([np.full(t, s) for _, t, s in SEQS]).astype(np.int64)
-    labels = (rng.random((N, 10)) < 0.3).astype(np.float32)
-    obj_flag = np.full((N, 35), -1, np.int64)
-    obj_flag[:40, 3] = 0          # seqA: object type 3 in slot 0, type 17 in slot 2
-    obj_flag[:40, 17] = 2
-    obj_flag[40:70, 34] = 4       # seqB: type 34 in slot 4
-    obj_mat = rng.normal(size=(N, 5, 4, 4)).astype(np.float32)
-    obj_mat[:, :, 3] = (0, 0, 0, 1)
-    obj_mat[70:, :] = np.nan     # seqC has no objects: garbage in empty slots must not leak
-    arrays = {
-        "human_joints": joints, "human_orient": rng.normal(size=(N, 3)).astype(np.float32),
-        "idx_start": np.arange(0, N - 48, 3, dtype=np.int64), "action_label": labels, "scene_flag": flag,
-        "object_flag": obj_flag, "object_mat": obj_mat, "seg_name": seg,
-        "frame_id": np.arange(N, dtype=np.int64),
-        "human_pose": rng.normal(size=(N, 63)).astype(np.float32),
-        "human_transl": rng.normal(size=(N, 3)).astype(np.float32),
-    }
-    for k, v in arrays.items():
-        np.save(root / f"{k}.npy", v)
-    (root / "Scene").mkdir()
-    for i, name in enumerate(SCENE_FILES):
-        occ = np.zeros(grid.shape, bool)
-        occ[:, 0, :5] = True                                       # a wall strip, everywhere
-        if i == 0:
-            lo, hi = _voxel((0.2, TABLE_TOP - 0.04, 0.2), grid), _voxel((0.8, TABLE_TOP - 0.0001, 0.8), grid)
-            occ[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1] = True  # table slab
-        np.save(root / "Scene" / name, occ)
-    return arrays
 
 
 @pytest.fixture(scope="module")

@@ -96,7 +96,7 @@ def test_obstacle_appears_in_front(tmp_path):
 def test_dynamic_object_enters_the_local_grid(tmp_path):
     """An object slot posed at the goal shows up in the window's occupancy."""
     import trimesh
-    from motiongen.data.format import DatasetWriter
+    from motiongen.data.dataset_writer import DatasetWriter
     from motiongen.data.occupancy import OccupancyGrid
     from motiongen.skeleton import BODY
     from tests.helpers import walking_sequence

@@ -22,12 +22,11 @@ from __future__ import annotations
 import json
 import math
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from motiongen.cli import parse_key_values, user_errors_exit_2
+from motiongen.cli import parse_key_values, tool_main
 from motiongen.errors import ConfigError, DataError
 from motiongen.skeleton import FOOT_JOINTS, NUM_BODY_JOINTS
 
@@ -210,9 +209,7 @@ def run(argv: list[str]) -> dict:
     return report
 
 
-@user_errors_exit_2
-def main(argv: list[str] | None = None) -> None:
-    run(sys.argv[1:] if argv is None else argv)
+main = tool_main(run)
 
 
 if __name__ == "__main__":

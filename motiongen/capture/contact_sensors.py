@@ -19,14 +19,13 @@ labels of the sensors' joints written into that sequence's `contact.npy`.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.signal import find_peaks
 
 from motiongen.capture.sensor_csv import SensorRecording, read_sensor_csv
-from motiongen.cli import parse_key_values, user_errors_exit_2
+from motiongen.cli import parse_key_values, tool_main
 from motiongen.errors import ConfigError, DataError
 from motiongen.spans import true_runs
 
@@ -361,9 +360,7 @@ def run(argv: list[str]) -> dict:
     return report
 
 
-@user_errors_exit_2
-def main(argv: list[str] | None = None) -> None:
-    run(sys.argv[1:] if argv is None else argv)
+main = tool_main(run)
 
 
 if __name__ == "__main__":

@@ -17,14 +17,13 @@ line and exit 2.
 from __future__ import annotations
 
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 from motiongen.capture.multiview import MultiviewConfig
-from motiongen.cli import parse_key_values, user_errors_exit_2
+from motiongen.cli import parse_key_values, tool_main
 from motiongen.errors import ConfigError
 from motiongen.skeleton import BODY_JOINT_NAMES
 
@@ -143,9 +142,7 @@ def run(argv: list[str]) -> dict:
     return report
 
 
-@user_errors_exit_2
-def main(argv: list[str] | None = None) -> None:
-    run(sys.argv[1:] if argv is None else argv)
+main = tool_main(run)
 
 
 if __name__ == "__main__":

@@ -25,14 +25,13 @@ from __future__ import annotations
 
 import functools
 import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from motiongen.cli import parse_key_values, user_errors_exit_2
+from motiongen.cli import parse_key_values, tool_main
 from motiongen.errors import ConfigError, DataError
 
 FORMAT = "motiongen-pose-prior"
@@ -183,9 +182,7 @@ def run(argv: list[str]) -> PosePrior:
     return prior
 
 
-@user_errors_exit_2
-def main(argv: list[str] | None = None) -> None:
-    run(sys.argv[1:] if argv is None else argv)
+main = tool_main(run)
 
 
 if __name__ == "__main__":

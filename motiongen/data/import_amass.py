@@ -18,7 +18,6 @@ written unless every file converts.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,7 +27,7 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, Slerp
 
 from motiongen.body.model import BodyModel, load_body_model
-from motiongen.cli import parse_key_values, user_errors_exit_2
+from motiongen.cli import parse_key_values, tool_main
 from motiongen.data.bvh_import import resample_times
 from motiongen.data.bvh_detect import check_plausible
 from motiongen.data.format import SMPLX_FIELDS
@@ -240,10 +239,7 @@ def run(args: dict) -> Path:
                        extra={"amass_import": {"body_model": str(bm.path), "sequences": info}})
 
 
-@user_errors_exit_2
-def main(argv: list[str] | None = None) -> None:
-    root = run(parse_args(sys.argv[1:] if argv is None else argv))
-    print(f"wrote {root}")
+main = tool_main(lambda argv: run(parse_args(argv)), lambda root: print(f"wrote {root}"))
 
 
 if __name__ == "__main__":

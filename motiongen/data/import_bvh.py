@@ -18,16 +18,15 @@ User mistakes print one line and exit with status 2.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from motiongen.cli import parse_key_values, user_errors_exit_2
+from motiongen.cli import parse_key_values, tool_main
 from motiongen.data.bvh_detect import UNITS
 from motiongen.data.bvh_import import import_bvh, load_mapping
 from motiongen.data.bvh_detect import parse_up
-from motiongen.data.format import DatasetWriter
+from motiongen.data.dataset_writer import DatasetWriter
 from motiongen.data.occupancy import OccupancyGrid
 from motiongen.errors import ConfigError, MotiongenError
 from motiongen.skeleton import BODY, LEFT_FOOT_JOINTS, RIGHT_FOOT_JOINTS
@@ -134,10 +133,7 @@ def write_clips(args: dict, clips: list[tuple[str, object]], fps: float, source:
         raise
 
 
-@user_errors_exit_2
-def main(argv: list[str] | None = None) -> None:
-    root = run(parse_args(sys.argv[1:] if argv is None else argv))
-    print(f"wrote {root}")
+main = tool_main(lambda argv: run(parse_args(argv)), lambda root: print(f"wrote {root}"))
 
 
 if __name__ == "__main__":

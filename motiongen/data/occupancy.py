@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
 from motiongen.errors import DataError
 
@@ -60,13 +61,14 @@ class OccupancyGrid:
         return np.where(inside, bit.astype(bool), outside)
 
     def surface_distance(self, floor_y: float | None = None):
-        """The grid's signed distance field (`motiongen.data.distance.SurfaceDistance`), built on
-        first use and kept with the grid; `floor_y` adds the floor half-space y < floor_y."""
-        if self._distance is None:
-            from motiongen.data.distance import SurfaceDistance
+        """The grid's signed distance field (`motiongen.data.distance_field.GridField`: call it
+        for distances, `.query` for directions and nearest points), built on first use and kept
+        with the grid; `floor_y` adds the floor half-space y < floor_y."""
+        from motiongen.data.distance_field import GridField, PlaneField, UnionField
 
-            self._distance = SurfaceDistance(self)
-        return self._distance if floor_y is None else self._distance.with_floor(floor_y)
+        if self._distance is None:
+            self._distance = GridField(self)
+        return self._distance if floor_y is None else UnionField(self._distance, PlaneField(floor_y))
 
     def save(self, stem: str | Path) -> None:
         """Write ``<stem>.occ.npy`` and ``<stem>.occ.json`` (each via a temp file and rename)."""
@@ -116,3 +118,33 @@ def load_npy(path: str | Path, field: str | None = None, mmap: bool = True) -> n
         return np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)
     except (ValueError, OSError, EOFError) as e:
         raise DataError(path, field, f"not a readable .npy file ({e})") from None
+
+
+# ---------------------------------------------------------------------------------------
+# Dilation by a ball
+
+
+def _ball_boxes(r: float) -> list[tuple[int, int, int]]:
+    """Half-extents of the maximal centred boxes whose union is the digital ball |d| <= r.
+
+    Every lattice point d of the ball lies in box(|dx|,|dy|,|dz|), which is inside the ball,
+    so the ball is the union of these boxes; dilating by a box is three 1-D max filters.
+    """
+    R = int(np.floor(r))
+    cands = [(a, b, int(np.floor(np.sqrt(r * r - a * a - b * b))))
+             for a in range(R + 1) for b in range(R + 1) if a * a + b * b <= r * r]
+    return [c for c in cands
+            if not any(o != c and o[0] >= c[0] and o[1] >= c[1] and o[2] >= c[2] for o in cands)]
+
+
+def near_occupied(occ: np.ndarray, radius_vox: float) -> np.ndarray:
+    """(X,Y,Z) bool: voxels whose centre is within `radius_vox` voxels of an occupied centre."""
+    u = np.ascontiguousarray(occ, dtype=bool).view(np.uint8)
+    out = np.zeros(occ.shape, bool)
+    for box in _ball_boxes(radius_vox):
+        d = u
+        for axis, h in enumerate(box):
+            if h:
+                d = ndimage.maximum_filter1d(d, 2 * h + 1, axis=axis, mode="constant", cval=0)
+        out |= d.view(bool)
+    return out

@@ -5,6 +5,7 @@ from __future__ import annotations
 import fcntl
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from motiongen.data.format import MotionDataset
 from motiongen.errors import ConfigError
@@ -19,6 +20,8 @@ class DataConfig:
     size: str = "default"            # synthetic size: default | small
     seed: int = 0                    # synthetic generator seed
     splits: dict | None = None       # override {train: [...], val: [...], test: [...]} scene ids
+    augmented: Any = None            # dataset dir or list of dirs of augmented sequences (motiongen.data.augment)
+                                     # whose train-scene sequences are mixed into the training data
 
 
 def dataset_root(cfg: DataConfig) -> Path:
@@ -56,4 +59,10 @@ def open_dataset(cfg: DataConfig, verbose: bool = True) -> MotionDataset:
                     if verbose:
                         print(f"converting TRUMANS release {cfg.release} -> {root}", flush=True)
                     convert_trumans(cfg.release, root, overwrite=root.exists())
-    return MotionDataset.open(root, splits=dict(cfg.splits) if cfg.splits else None)
+    splits = dict(cfg.splits) if cfg.splits else None
+    ds = MotionDataset.open(root, splits=splits)
+    if cfg.augmented:
+        from motiongen.data.mix import open_mixed
+        paths = [cfg.augmented] if isinstance(cfg.augmented, str) else list(cfg.augmented)
+        ds = open_mixed(ds, paths, splits, cache_dir() / "datasets", verbose)
+    return ds

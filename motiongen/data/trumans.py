@@ -25,42 +25,16 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 
 from motiongen.cli import parse_key_values, user_errors_exit_2
-from motiongen.data.format import DEFAULT_SPLITS, DatasetWriter
-from motiongen.data.occupancy import OccupancyGrid
+from motiongen.data.format import DEFAULT_SPLITS
+from motiongen.data.dataset_writer import DatasetWriter
+from motiongen.data.occupancy import OccupancyGrid, near_occupied
 from motiongen.data.trumans_release import (_NUM_BETAS, CONTACT_RADIUS, NUM_OBJECT_SLOTS, TRUMANS_ACTIONS,
                                             TRUMANS_FPS, TRUMANS_GRID, GridSpec, TrumansRelease, TrumansSequence,
                                             interpret_object_flags, open_release)
 from motiongen.errors import DataError
 from motiongen.skeleton import get_joint_set
-
-
-def _ball_boxes(r: float) -> list[tuple[int, int, int]]:
-    """Half-extents of the maximal centred boxes whose union is the digital ball |d| <= r.
-
-    Every lattice point d of the ball lies in box(|dx|,|dy|,|dz|), which is inside the ball,
-    so the ball is the union of these boxes; dilating by a box is three 1-D max filters.
-    """
-    R = int(np.floor(r))
-    cands = [(a, b, int(np.floor(np.sqrt(r * r - a * a - b * b))))
-             for a in range(R + 1) for b in range(R + 1) if a * a + b * b <= r * r]
-    return [c for c in cands
-            if not any(o != c and o[0] >= c[0] and o[1] >= c[1] and o[2] >= c[2] for o in cands)]
-
-
-def near_occupied(occ: np.ndarray, radius_vox: float) -> np.ndarray:
-    """(X,Y,Z) bool: voxels whose centre is within `radius_vox` voxels of an occupied centre."""
-    u = np.ascontiguousarray(occ, dtype=bool).view(np.uint8)
-    out = np.zeros(occ.shape, bool)
-    for box in _ball_boxes(radius_vox):
-        d = u
-        for axis, h in enumerate(box):
-            if h:
-                d = ndimage.maximum_filter1d(d, 2 * h + 1, axis=axis, mode="constant", cval=0)
-        out |= d.view(bool)
-    return out
 
 
 def scene_contact(joints: np.ndarray, near: OccupancyGrid, floor_y: float, radius: float) -> np.ndarray:

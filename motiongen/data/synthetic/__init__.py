@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from motiongen.data.format import DEFAULT_SPLITS, DatasetWriter
+from motiongen.data.format import DEFAULT_SPLITS
+from motiongen.data.dataset_writer import DatasetWriter
 from motiongen.data.synthetic.labels import ACTIONS
 from motiongen.errors import ConfigError
 from motiongen.skeleton import BODY
