@@ -247,12 +247,11 @@ def test_mixing_into_training(tmp_path):
 def test_hydra_key():
     from hydra import compose, initialize_config_dir
 
-    from pathlib import Path
-
+    from motiongen.cli import CONFIG_DIR
     from motiongen.config import register_configs
 
     register_configs()
-    with initialize_config_dir(config_dir=str(Path(__file__).parents[1] / "configs"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
         cfg = compose("train", overrides=["data=small", "data.augmented=[/a,/b]"])
     assert list(cfg.data.augmented) == ["/a", "/b"]
     assert ContactConfig().threshold == 0.02 and AugmentConfig().window == W
@@ -270,11 +269,13 @@ def test_synthetic_dataset_end_to_end(tmp_path):
     seq = next(s for s in src.split_sequences("train") if np.asarray(src.actions[s.start:s.end, pick]).any())
     w = DatasetWriter(tmp_path / "one", src.joint_set, src.action_names, src.fps, src.meta["num_object_slots"])
     w.add_scene(seq.scene, grid=src.grid(seq.scene), mesh=src.scene_mesh(seq.scene), name=src.scenes[seq.scene]["name"])
-    ids = np.asarray(src.object_ids[seq.start:seq.end])
+    # The pick-up and a second either side: the part of the sequence the tools have work in.
+    held = np.flatnonzero(np.asarray(src.actions[seq.start:seq.end, pick]))
+    a, b = seq.start + max(0, held[0] - 30), seq.start + min(seq.end - seq.start, held[-1] + 31)
+    ids = np.asarray(src.object_ids[a:b])
     for oid in np.unique(ids[ids >= 0]).tolist():
         w.add_object(oid, src.objects[oid]["name"], src.objects[oid]["type"], mesh=src.object_mesh(oid))
-    w.add_sequence(seq.name, seq.scene, src.joints[seq.start:seq.end], src.actions[seq.start:seq.end],
-                   src.contact[seq.start:seq.end], src.object_poses[seq.start:seq.end], ids)
+    w.add_sequence(seq.name, seq.scene, src.joints[a:b], src.actions[a:b], src.contact[a:b], src.object_poses[a:b], ids)
     root = w.finish(splits=src.splits, source="synthetic")
     r = annotate_dataset(root, progress=False)
     vc = MotionDataset.open(root).vertex_contact()

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from motiongen.cli import parse_key_values
-from motiongen.commands import COMMANDS
+from motiongen.commands import COMMANDS, main
 from motiongen.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -57,9 +57,18 @@ def test_help_lists_every_key_with_type_and_default(capsys):
 
 
 def motiongen(*args):
+    """The console script as a user runs it (a fresh interpreter)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run([sys.executable, "-m", "motiongen.commands", *args], capture_output=True, text=True,
                           env=env, cwd=ROOT, timeout=120)
+
+
+def motiongen_here(capsys, *args):
+    """`motiongen` in this process (no interpreter start-up): (exit code, stdout, stderr)."""
+    with pytest.raises(SystemExit) as e:
+        main(list(args))
+    out = capsys.readouterr()
+    return e.value.code, out.out, out.err
 
 
 def test_console_script_is_installed():
@@ -77,19 +86,21 @@ def test_command_list_and_unknown_command():
 
 
 @pytest.mark.parametrize("name", [n for n in COMMANDS if n not in ("train", "sample", "evaluate", "train-body-mlp")])
-def test_every_small_tool_has_help_and_one_line_errors(name):
-    r = motiongen(name, "--help")
-    assert r.returncode == 0 and "keys (key=value" in r.stdout and "default:" in r.stdout, r.stderr
-    r = motiongen(name, "bogus_key=1")
-    assert r.returncode == 2 and r.stderr.strip().splitlines() == [r.stderr.strip()], r.stderr
-    assert r.stderr.startswith("error: unknown key 'bogus_key'")
+def test_every_small_tool_has_help_and_one_line_errors(name, capsys):
+    code, out, err = motiongen_here(capsys, name, "--help")
+    assert code == 0 and "keys (key=value" in out and "default:" in out, err
+    code, out, err = motiongen_here(capsys, name, "bogus_key=1")
+    assert code == 2 and err.startswith("error: unknown key 'bogus_key'") and len(err.strip().splitlines()) == 1
 
 
 @pytest.mark.parametrize("name", ["train", "sample", "evaluate"])
-def test_hydra_apps_through_the_command(name, tmp_path):
-    r = motiongen(name, "nonsense_key=1", f"hydra.run.dir={tmp_path / 'run'}")
-    assert r.returncode == 2 and r.stderr.startswith("error: unknown key") and len(r.stderr.strip().splitlines()) == 1
+def test_hydra_apps_through_the_command(name, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(sys, "argv", list(sys.argv))                  # the command rewrites it for Hydra
+    code, out, err = motiongen_here(capsys, name, "nonsense_key=1", f"hydra.run.dir={tmp_path / 'run'}")
+    assert code == 2 and err.startswith("error: unknown key") and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "run").exists()
-    if name != "train":
-        r = motiongen(name, f"ckpt={tmp_path / 'none.pt'}", f"out={tmp_path / 'o'}")
-        assert r.returncode == 2 and "checkpoint file does not exist" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_a_hydra_app_runs_through_the_console_script(tmp_path):
+    r = motiongen("sample", f"ckpt={tmp_path / 'none.pt'}", f"out={tmp_path / 'o'}")
+    assert r.returncode == 2 and "checkpoint file does not exist" in r.stderr and "Traceback" not in r.stderr
