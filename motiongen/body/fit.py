@@ -37,7 +37,7 @@ from motiongen.body._threads import torch_threads
 from motiongen.body.analytic import analytic_init, smooth_rotations
 from motiongen.body.foot_velocity import check_mask, foot_velocity_loss, foot_velocity_mask
 from motiongen.body.mlp import JointsToBodyMLP
-from motiongen.body.model import BodyModel, load_body_model
+from motiongen.body.model import BodyModel, BodyParams, load_body_model
 from motiongen.body.rotations import matrix_to_axis_angle, matrix_to_rot6d, rot6d_to_matrix
 from motiongen.errors import ConfigError
 from motiongen.skeleton import FOOT_JOINTS, NUM_BODY_JOINTS
@@ -72,11 +72,7 @@ class RefineConfig:
 
 
 @dataclass
-class FitResult:
-    global_orient: np.ndarray       # (T, 3) axis-angle
-    body_pose: np.ndarray           # (T, 63) axis-angle
-    transl: np.ndarray              # (T, 3)
-    betas: np.ndarray               # (nβ,)
+class FitResult(BodyParams):
     joints: np.ndarray              # (T, 22, 3) fitted body-model joints
     per_frame_error: np.ndarray     # (T,) mean joint distance to the target, metres
     mpjpe_mlp: float | None         # metres, the MLP's raw prediction (None without MLP)

@@ -13,6 +13,7 @@ G_parent(j)·(J_j − J_parent(j)) + posed parent, with the root at J_0(β) + tr
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +62,17 @@ def forward_kinematics(rotmats: torch.Tensor, rest: torch.Tensor, parents, level
         G[j] = G[p] @ R[j]
         P[j] = P[p] + (G[p] @ O[j][..., None])[..., 0]
     return torch.stack(P, -2), (torch.stack(G, -3) if with_rotations else None)
+
+
+@dataclass
+class BodyParams:
+    """SMPL-X body parameters of a motion: what `BodyModel.motion_vertices` poses and
+    `fit.save_amass_npz` writes. Fit results, sampled bodies and multi-view fits extend it."""
+
+    global_orient: np.ndarray       # (T, 3) axis-angle
+    body_pose: np.ndarray           # (T, 63) axis-angle, 21 body joints
+    transl: np.ndarray              # (T, 3) metres
+    betas: np.ndarray               # (nβ,)
 
 
 class BodyModel(torch.nn.Module):
@@ -153,9 +165,9 @@ class BodyModel(torch.nn.Module):
 
     def motion_vertices(self, params, frames=slice(None), vertex_ids=None) -> np.ndarray:
         """(n, K, 3) mesh vertices (numpy, the model's dtype) of a motion's parameters at
-        `frames` (a slice or indices), only `vertex_ids` (default all). params: anything with
-        global_orient (T, 3), body_pose (T, 63), transl (T, 3), betas (nβ,) — a `FitResult`, a
-        `BodyMotion`, an AMASS-style npz's fields."""
+        `frames` (a slice or indices), only `vertex_ids` (default all). params: a `BodyParams`
+        (a `FitResult`, a `BodyMotion`, ...) or anything with its four fields (an AMASS-style
+        npz's)."""
         dev, dt = self.J_template.device, self.J_template.dtype
 
         def t(a, f=frames):

@@ -27,7 +27,7 @@ import torch
 from motiongen.body.analytic import analytic_init
 from motiongen.body.fit import RefineConfig, refine
 from motiongen.body.limbs import place_limbs
-from motiongen.body.model import BodyModel, forward_kinematics
+from motiongen.body.model import BodyModel, BodyParams, forward_kinematics
 from motiongen.body.rotations import matrix_to_axis_angle
 from motiongen.skeleton import EXTRA_JOINTS, NUM_BODY_JOINTS, JointSet
 
@@ -46,14 +46,10 @@ SOLVE_CONFIG = RefineConfig(max_steps=80, w_contact=100.0, w_reach=30.0, w_smoot
 
 
 @dataclass
-class BodyMotion:
+class BodyMotion(BodyParams):
     """A motion of one body: SMPL-X parameters and the joints they pose."""
 
     joints: np.ndarray          # (T, J, 3) float32, the model's joint set
-    global_orient: np.ndarray   # (T, 3) axis-angle
-    body_pose: np.ndarray       # (T, 63)
-    transl: np.ndarray          # (T, 3)
-    betas: np.ndarray           # (nβ,)
     rotmats: np.ndarray         # (T, 22, 3, 3) local rotations
 
     def as_fit(self, joints: np.ndarray):
@@ -168,5 +164,6 @@ class MotionBody:
             J = self.pose(R[None], transl[None], slice(sample, sample + 1))[0]                   # (T, J, 3)
             aa = matrix_to_axis_angle(R)                                                       # (T, 22, 3)
         T = X.shape[0]
-        return BodyMotion(J.numpy().astype(np.float32), aa[:, 0].numpy(), aa[:, 1:].reshape(T, 63).numpy(),
-                          transl.numpy(), betas.numpy(), R.numpy())
+        return BodyMotion(global_orient=aa[:, 0].numpy(), body_pose=aa[:, 1:].reshape(T, 63).numpy(),
+                          transl=transl.numpy(), betas=betas.numpy(), joints=J.numpy().astype(np.float32),
+                          rotmats=R.numpy())

@@ -24,7 +24,7 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation, Slerp
 
 from motiongen.body._threads import torch_threads
-from motiongen.body.model import BodyModel
+from motiongen.body.model import BodyModel, BodyParams
 from motiongen.body.rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_rot6d, rot6d_to_matrix
 from motiongen.capture.cameras import Cameras
 from motiongen.capture.objective import SEED_STAGES, StageWeights, Targets, terms, total
@@ -63,11 +63,7 @@ class MultiviewConfig:
 
 
 @dataclass
-class MultiviewResult:
-    global_orient: np.ndarray         # (T, 3) axis-angle
-    body_pose: np.ndarray             # (T, 63) axis-angle
-    transl: np.ndarray                # (T, 3)
-    betas: np.ndarray                 # (nβ,)
+class MultiviewResult(BodyParams):
     z: np.ndarray                     # (T, d) pose latents
     joints: np.ndarray                # (T, 22, 3) fitted joints, metres
     x3d: np.ndarray                   # (T, 22, 3) 3D targets (given or triangulated)
