@@ -5,10 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from motiongen.data.dataset_writer import DatasetWriter
 from motiongen.data.occupancy import OccupancyGrid
-from motiongen.data.trumans import GridSpec
+from motiongen.data.trumans_release import GridSpec
 from motiongen.geometry import transform_points, local_to_world
 from motiongen.skeleton import BODY
 
@@ -162,3 +163,14 @@ def write_posed_release(root: Path, mesh_dir: Path | None = None, grid: GridSpec
 
 
 HOLD = slice(12, 30)   # frames of seqA in which the left hand rests on the box (write_posed_release)
+
+
+def user_error(capsys, main, argv) -> str:
+    """Run a tool's `main(argv)` that must refuse: exit status 2 and one line `error: ...` on
+    stderr, no traceback. Returns that line."""
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "\n" not in err and "Traceback" not in err
+    return err

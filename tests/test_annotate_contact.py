@@ -24,7 +24,7 @@ from motiongen.data.dataset_writer import DatasetWriter
 from motiongen.data.voxelize import voxelize_mesh
 from motiongen.errors import DataError
 from motiongen.skeleton import BODY
-from tests.helpers import HOLD, SMALL, make_dataset, write_fake_release, write_posed_release
+from tests.helpers import HOLD, SMALL, make_dataset, user_error, write_fake_release, write_posed_release
 
 BOX = trimesh.creation.box(extents=(0.4, 0.4, 0.4))          # x, y, z in [-0.2, 0.2]
 E = np.eye(3)
@@ -274,10 +274,7 @@ def test_cli_runs_and_refuses_to_overwrite(rest_dataset, tmp_path, capsys):
 def test_cli_errors(args, words, tmp_path, capsys):
     ds = make_dataset(tmp_path / "ds", scenes=(1,), seqs_per_scene=1, T=5)      # grids only, no mesh
     argv = list(args) if not args or args[0].startswith("root=") else [f"root={ds}"] + args
-    with pytest.raises(SystemExit) as e:
-        main(argv)
-    err = capsys.readouterr().err
-    assert e.value.code == 2 and words in err and len(err.strip().splitlines()) == 1
+    assert words in user_error(capsys, main, argv)
     assert not (ds / "vertex_contact").exists() and not list(ds.glob("vertex_contact.*"))
 
 

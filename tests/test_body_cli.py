@@ -14,6 +14,7 @@ from motiongen.body.model import BodyModel
 from motiongen.body.motion import sample_motion
 from motiongen.body.procedural import ensure_procedural_model
 from motiongen.body.fit_cli import main
+from tests.helpers import user_error
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -32,15 +33,6 @@ def joints(model_path):
         with torch.no_grad():
             out.append(bm.joints(m["global_orient"], m["body_pose"], m["transl"], m["betas"]).numpy())
     return np.stack(out)                                           # (2, 30, 22, 3)
-
-
-def _exit2(capsys, argv):
-    with pytest.raises(SystemExit) as e:
-        main(argv)
-    assert e.value.code == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("error: ") and "\n" not in err and "Traceback" not in err
-    return err
 
 
 def test_fit_cli_samples_report_and_meshes(tmp_path, joints, model_path):
@@ -82,23 +74,23 @@ def test_fit_cli_user_errors(tmp_path, capsys, joints, model_path):
     ok = tmp_path / "ok.npz"
     np.savez(ok, joints=joints[0])
     base = [f"out={tmp_path / 'o'}", "mlp=none"]
-    assert "does not exist" in _exit2(capsys, [f"input={tmp_path / 'missing.npz'}"] + base)
+    assert "does not exist" in user_error(capsys, main, [f"input={tmp_path / 'missing.npz'}"] + base)
     bad = tmp_path / "j21.npz"
     np.savez(bad, joints=joints[0][:, :21])
-    assert "22" in _exit2(capsys, [f"input={bad}"] + base)
+    assert "22" in user_error(capsys, main, [f"input={bad}"] + base)
     nan = tmp_path / "nan.npz"
     j = joints[0].copy()
     j[5, 3, 0] = np.nan
     np.savez(nan, joints=j)
-    assert "frame 5" in _exit2(capsys, [f"input={nan}"] + base)
+    assert "frame 5" in user_error(capsys, main, [f"input={nan}"] + base)
     nokey = tmp_path / "nokey.npz"
     np.savez(nokey, positions=joints[0])
-    assert "[joints]" in _exit2(capsys, [f"input={nokey}"] + base)
-    assert "not found" in _exit2(capsys, [f"input={ok}", f"body.model_path={tmp_path / 'SMPLX.npz'}"] + base)
-    assert "checkpoint" in _exit2(capsys, [f"input={ok}", f"out={tmp_path / 'o'}", f"mlp={tmp_path / 'x.pt'}"])
-    assert "unknown key" in _exit2(capsys, [f"input={ok}", "bogus=1"] + base)
-    assert "out" in _exit2(capsys, [f"input={ok}"])
-    assert "seq=" in _exit2(capsys, [f"input={tmp_path}"] + base)
+    assert "[joints]" in user_error(capsys, main, [f"input={nokey}"] + base)
+    assert "not found" in user_error(capsys, main, [f"input={ok}", f"body.model_path={tmp_path / 'SMPLX.npz'}"] + base)
+    assert "checkpoint" in user_error(capsys, main, [f"input={ok}", f"out={tmp_path / 'o'}", f"mlp={tmp_path / 'x.pt'}"])
+    assert "unknown key" in user_error(capsys, main, [f"input={ok}", "bogus=1"] + base)
+    assert "out" in user_error(capsys, main, [f"input={ok}"])
+    assert "seq=" in user_error(capsys, main, [f"input={tmp_path}"] + base)
 
 
 def test_fit_cli_subprocess_exit_code(tmp_path):

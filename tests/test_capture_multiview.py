@@ -12,6 +12,7 @@ from capture_rig import look_at_cameras, make_rig  # tests/ is on sys.path under
 
 from motiongen.body.model import load_body_model
 from motiongen.capture.cameras import load_cameras, save_cameras
+from motiongen.capture.fit_multiview import main as fit_main
 from motiongen.capture.keypoints import layout_to_joints, load_keypoints2d, load_keypoints3d, to_body_joints
 from motiongen.capture.multiview import MultiviewConfig, fit_multiview, root_init
 from motiongen.capture.objective import SEED_STAGES, Targets, geman_mcclure, terms
@@ -19,6 +20,7 @@ from motiongen.capture.pose_prior import default_prior, fit_prior, load_prior
 from motiongen.capture.triangulate import temporal_outliers, triangulate
 from motiongen.errors import ConfigError, DataError
 from motiongen.skeleton import BODY_JOINT_NAMES
+from tests.helpers import user_error
 
 
 @pytest.fixture(scope="module")
@@ -325,17 +327,6 @@ def write_rig(tmp_path, rig, layout="smplx22"):
     return cams, tmp_path / "kp.npz"
 
 
-def exit2(capsys, argv) -> str:
-    from motiongen.capture.fit_multiview import main
-
-    with pytest.raises(SystemExit) as e:
-        main(argv)
-    assert e.value.code == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("error: ") and "\n" not in err and "Traceback" not in err
-    return err
-
-
 @pytest.mark.slow
 def test_cli_end_to_end_coco_layout(tmp_path, bm):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -385,13 +376,13 @@ def test_cli_with_given_3d_keypoints_and_user_errors(tmp_path, bm, capsys):
     assert np.linalg.norm(np.load(out / "params.npz")["joints"] - rig.joints, axis=-1).mean() < 0.02
     # user mistakes: one line, exit 2, nothing (new) written
     bad_out = tmp_path / "bad"
-    assert "does not exist" in exit2(capsys, [f"cameras={tmp_path / 'no.json'}", f"keypoints2d={kp}", f"out={bad_out}"])
+    assert "does not exist" in user_error(capsys, fit_main, [f"cameras={tmp_path / 'no.json'}", f"keypoints2d={kp}", f"out={bad_out}"])
     np.savez(tmp_path / "two.npz", keypoints=np.zeros((2, 12, 22, 3)))
-    assert "2 cameras of keypoints but 3" in exit2(capsys, [f"cameras={cams}", f"keypoints2d={tmp_path / 'two.npz'}",
+    assert "2 cameras of keypoints but 3" in user_error(capsys, fit_main, [f"cameras={cams}", f"keypoints2d={tmp_path / 'two.npz'}",
                                                             f"out={bad_out}"])
-    assert "robust" in exit2(capsys, base[:2] + [f"out={bad_out}", "robust=huber"])
-    assert "unknown key" in exit2(capsys, base + ["lambda3d=2"])
-    assert "missing out=" in exit2(capsys, base[:2])
+    assert "robust" in user_error(capsys, fit_main, base[:2] + [f"out={bad_out}", "robust=huber"])
+    assert "unknown key" in user_error(capsys, fit_main, base + ["lambda3d=2"])
+    assert "missing out=" in user_error(capsys, fit_main, base[:2])
     np.savez(tmp_path / "k3bad.npz", keypoints3d=x3[:5])
-    assert "5 frames" in exit2(capsys, base[:2] + [f"out={bad_out}", f"keypoints3d={tmp_path / 'k3bad.npz'}"])
+    assert "5 frames" in user_error(capsys, fit_main, base[:2] + [f"out={bad_out}", f"keypoints3d={tmp_path / 'k3bad.npz'}"])
     assert not bad_out.exists() or not any(bad_out.iterdir())

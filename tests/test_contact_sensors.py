@@ -14,6 +14,7 @@ from motiongen.capture.contact_sensors import (ClockMap, filter_min_duration, ma
                                                propose_threshold, resample)
 from motiongen.capture.sensor_csv import SensorRecording, read_sensor_csv
 from motiongen.data.format import MotionDataset
+from tests.helpers import user_error
 
 REPO = Path(__file__).resolve().parents[1]
 HEADER = ("left_hand", "right_hand", "left_foot:heel", "right_foot")
@@ -58,15 +59,6 @@ def truth(frames, ivs):
     for a, b in ivs:
         on |= (frames >= a) & (frames < b)
     return on
-
-
-def _exit2(capsys, argv):
-    with pytest.raises(SystemExit) as e:
-        main(argv)
-    assert e.value.code == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("error: ") and "\n" not in err and "Traceback" not in err
-    return err
 
 
 # ---- pieces with known answers -------------------------------------------------------------
@@ -234,7 +226,7 @@ def test_user_errors_exit_2_and_leave_the_dataset_alone(tmp_path, capsys):
     good = tmp_path / "rec.csv"
     claps = f"clap_frames=[{known['f0']},{known['f1']}]"
     base = ["video_fps=30", claps, f"out={tmp_path / 'o'}", "plot=false"]
-    assert "does not exist" in _exit2(capsys, [f"signal={tmp_path / 'none.csv'}"] + base)
+    assert "does not exist" in user_error(capsys, main, [f"signal={tmp_path / 'none.csv'}"] + base)
     lines = good.read_text().splitlines()
 
     def variant(name, line, col=None, value=None, text=None):
@@ -250,39 +242,39 @@ def test_user_errors_exit_2_and_leave_the_dataset_alone(tmp_path, capsys):
         p.write_text("\n".join(rows) + "\n")
         return [f"signal={p}"] + base
 
-    assert "line 6 column 3" in _exit2(capsys, variant("nan.csv", 6, 2, "x"))
-    assert "line 8: reading 2000" in _exit2(capsys, variant("range.csv", 8, 2, "2000"))
-    assert "line 10 " in _exit2(capsys, variant("time.csv", 10, text=lines[8]))
-    assert "line 5 has 4 values" in _exit2(capsys, variant("short.csv", 5, text="40,1,2,3"))
-    assert "[left_knuckle]" in _exit2(capsys, variant("joint.csv", 1, 1, "left_knuckle"))
-    assert "header line" in _exit2(capsys, variant("nohead.csv", 1, text=lines[1]))
+    assert "line 6 column 3" in user_error(capsys, main, variant("nan.csv", 6, 2, "x"))
+    assert "line 8: reading 2000" in user_error(capsys, main, variant("range.csv", 8, 2, "2000"))
+    assert "line 10 " in user_error(capsys, main, variant("time.csv", 10, text=lines[8]))
+    assert "line 5 has 4 values" in user_error(capsys, main, variant("short.csv", 5, text="40,1,2,3"))
+    assert "[left_knuckle]" in user_error(capsys, main, variant("joint.csv", 1, 1, "left_knuckle"))
+    assert "header line" in user_error(capsys, main, variant("nohead.csv", 1, text=lines[1]))
     # claps: without the end clap only one is found
     one = tmp_path / "one.csv"
     data = np.loadtxt(good, delimiter=",", skiprows=1)
     i1 = known["rows"][1]
     data[i1 - 2:i1 + 3, 1:3] = BASE
     np.savetxt(one, data, fmt="%d", delimiter=",", header="time_ms," + ",".join(HEADER), comments="")
-    assert "clap_samples" in _exit2(capsys, [f"signal={one}"] + base)
-    assert "check clap_frames" in _exit2(capsys, [f"signal={good}", "video_fps=30", "clap_frames=[30,500]",
+    assert "clap_samples" in user_error(capsys, main, [f"signal={one}"] + base)
+    assert "check clap_frames" in user_error(capsys, main, [f"signal={good}", "video_fps=30", "clap_frames=[30,500]",
                                                   f"out={tmp_path / 'o'}"])
-    assert "0.1 Hz, time in s" in _exit2(capsys, [f"signal={good}", "time_unit=s"] + base)
-    assert "time unit" in _exit2(capsys, [f"signal={good}", "time_unit=s", f"clap_samples=[{known['rows'][0]},"
+    assert "0.1 Hz, time in s" in user_error(capsys, main, [f"signal={good}", "time_unit=s"] + base)
+    assert "time unit" in user_error(capsys, main, [f"signal={good}", "time_unit=s", f"clap_samples=[{known['rows'][0]},"
                                                                            f"{known['rows'][1]}]"] + base)
-    assert "after the start" in _exit2(capsys, [f"signal={good}", "video_fps=30", "clap_frames=[50,40]",
+    assert "after the start" in user_error(capsys, main, [f"signal={good}", "video_fps=30", "clap_frames=[50,40]",
                                                 f"out={tmp_path / 'o'}"])
-    assert "expected 4 values" in _exit2(capsys, [f"signal={good}", "thresholds=[1,2]"] + base)
-    assert "no sensor channel" in _exit2(capsys, [f"signal={good}", "thresholds=[nose=3]"] + base)
-    assert "merge" in _exit2(capsys, [f"signal={good}", "merge=and"] + base)
-    assert "go together" in _exit2(capsys, [f"signal={good}", f"dataset={tmp_path}"] + base)
-    assert "missing clap_frames" in _exit2(capsys, [f"signal={good}", "video_fps=30", f"out={tmp_path / 'o'}"])
+    assert "expected 4 values" in user_error(capsys, main, [f"signal={good}", "thresholds=[1,2]"] + base)
+    assert "no sensor channel" in user_error(capsys, main, [f"signal={good}", "thresholds=[nose=3]"] + base)
+    assert "merge" in user_error(capsys, main, [f"signal={good}", "merge=and"] + base)
+    assert "go together" in user_error(capsys, main, [f"signal={good}", f"dataset={tmp_path}"] + base)
+    assert "missing clap_frames" in user_error(capsys, main, [f"signal={good}", "video_fps=30", f"out={tmp_path / 'o'}"])
     # dataset: unknown sequence; frames outside the recording -> contact.npy unchanged
     root = make_dataset(tmp_path / "ds", scenes=(1,), seqs_per_scene=1, T=60)
     old = (root / "contact.npy").read_bytes()
-    assert "no sequence" in _exit2(capsys, [f"signal={good}", f"dataset={root}", "sequence=nope"] + base)
-    assert "outside the recording" in _exit2(capsys, [f"signal={good}", f"dataset={root}", "sequence=s1_0",
+    assert "no sequence" in user_error(capsys, main, [f"signal={good}", f"dataset={root}", "sequence=nope"] + base)
+    assert "outside the recording" in user_error(capsys, main, [f"signal={good}", f"dataset={root}", "sequence=s1_0",
                                                       "frame_offset=580"] + base)
     index = variant("index.csv", 1, 1, "left_index1")[0]
-    assert "lacks" in _exit2(capsys, [index, f"dataset={root}", "sequence=s1_0"] + base)
+    assert "lacks" in user_error(capsys, main, [index, f"dataset={root}", "sequence=s1_0"] + base)
     assert (root / "contact.npy").read_bytes() == old and "contact_sensors" not in (root / "meta.json").read_text()
 
 

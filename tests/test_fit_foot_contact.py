@@ -14,6 +14,7 @@ from motiongen.body.motion import sample_motion
 from motiongen.errors import ConfigError
 from motiongen.body.fit_cli import main
 from motiongen.skeleton import FOOT_JOINTS
+from tests.helpers import user_error
 
 A = 0.10                                              # the seed's a, m/s
 LEFT = FOOT_JOINTS[:2]                                # left ankle, left toe
@@ -113,15 +114,6 @@ def test_bad_settings_are_config_errors(bm, sliding):
                    config=RefineConfig(w_foot_vel=1.0, foot_vel_mask="contact"))
 
 
-def _exit2(capsys, argv):
-    with pytest.raises(SystemExit) as e:
-        main(argv)
-    assert e.value.code == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("error: ") and "\n" not in err and "Traceback" not in err
-    return err
-
-
 def test_fit_cli_foot_velocity_keys(tmp_path, capsys, sliding):
     T = len(sliding)
     contact = np.zeros((T, 22), bool)
@@ -138,12 +130,12 @@ def test_fit_cli_foot_velocity_keys(tmp_path, capsys, sliding):
     base = [f"out={tmp_path / 'o'}", "mlp=none", "mesh=false", "foot_vel.weight=0.1"]
     bare = tmp_path / "bare.npz"
     np.savez(bare, joints=sliding)
-    assert "[contact]" in _exit2(capsys, [f"input={bare}", "foot_vel.mask=contact"] + base)
+    assert "[contact]" in user_error(capsys, main, [f"input={bare}", "foot_vel.mask=contact"] + base)
     wrong = tmp_path / "wrong.npz"
     np.savez(wrong, joints=sliding, contact=np.zeros((T, 7), bool))
-    assert "(30, 22)" in _exit2(capsys, [f"input={wrong}", "foot_vel.mask=contact"] + base)
-    assert "height or contact" in _exit2(capsys, [f"input={bare}", "foot_vel.mask=speed"] + base)
-    assert ">= 0" in _exit2(capsys, [f"input={bare}", "foot_vel.a=-1"] + base)
+    assert "(30, 22)" in user_error(capsys, main, [f"input={wrong}", "foot_vel.mask=contact"] + base)
+    assert "height or contact" in user_error(capsys, main, [f"input={bare}", "foot_vel.mask=speed"] + base)
+    assert ">= 0" in user_error(capsys, main, [f"input={bare}", "foot_vel.a=-1"] + base)
 
 
 def test_fit_cli_takes_contact_labels_from_a_dataset_sequence(tmp_path, sliding):
