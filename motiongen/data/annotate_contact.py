@@ -23,17 +23,19 @@ from pathlib import Path
 import numpy as np
 
 from motiongen.body.model import BodyModel, load_body_model
-from motiongen.cli import parse_key_values, user_errors_exit_2
+from motiongen.cli import parse_key_values, tool_main
 from motiongen.data.contact import (TARGET_NAMES, BodySurface, ContactConfig, SceneTargets,
                                     joint_targets, penetration_per_frame, vertex_contacts)
 from motiongen.data.contact_labels import VertexContactWriter
 from motiongen.data.contact_stats import penetration_table, plot_penetration, write_table
 from motiongen.data.distance_field import MeshField, PlaneField
 from motiongen.data.format import SMPLX_FIELDS, MotionDataset, Sequence
+from motiongen.data.scene import MESH_SUFFIXES
 from motiongen.errors import ConfigError, DataError
 from motiongen.skeleton import NUM_BODY_JOINTS
 
-MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".stl", ".off")
+# The formats scene meshes are read in, .ply (what datasets store objects as) tried first.
+OBJECT_SUFFIXES = (".ply",) + tuple(s for s in MESH_SUFFIXES if s != ".ply")
 OBJECT_VOXEL = 0.01          # objects are small: a finer solid grid than the scene's
 
 
@@ -73,7 +75,7 @@ class SurfaceBank:
             mesh = self.ds.object_mesh(oid)
             if mesh is None and self.mesh_dir is not None:
                 name = self.ds.objects.get(oid, {}).get("name", str(oid))
-                for suffix in MESH_SUFFIXES:
+                for suffix in OBJECT_SUFFIXES:
                     if (self.mesh_dir / f"{name}{suffix}").is_file():
                         from motiongen.data.scene import load_mesh_file
                         mesh = load_mesh_file(self.mesh_dir / f"{name}{suffix}")
@@ -246,16 +248,16 @@ def run(args: dict) -> AnnotationResult:
                             args["overwrite"], args["progress"])
 
 
-@user_errors_exit_2
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else list(argv)
-    r = run(parse_key_values(argv, SPEC, required=("root",), usage=USAGE, doc=__doc__))
+def _report(r: AnnotationResult) -> None:
     t = r.table
     print(f"wrote {r.path}: {r.frames} frames in {r.seconds:.1f} s ({r.frames_per_second:.1f} frames/s, "
           f"body {r.body}); penetrating frames {t['frames_penetrating']}/{t['frames']}; "
           f"mean/median penetration < 2 cm in {100 * t['share_below']['mean']['<2 cm']:.1f} / "
           f"{100 * t['share_below']['median']['<2 cm']:.1f} % of frames")
-    return 0
+
+
+main = tool_main(lambda argv: run(parse_key_values(argv, SPEC, required=("root",), usage=USAGE, doc=__doc__)),
+                 _report)
 
 
 if __name__ == "__main__":

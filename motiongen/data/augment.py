@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from motiongen.body.model import BodyModel, load_body_model
-from motiongen.cli import parse_key_values, user_errors_exit_2
+from motiongen.cli import parse_key_values, tool_main
 from motiongen.data import augment_objects as edits
 from motiongen.data.annotate_contact import OBJECT_VOXEL, SurfaceBank, annotate_dataset, annotate_frames
 from motiongen.data.augment_body import contact_points, contact_runs, initial_body, retarget, solve_body
@@ -333,16 +333,16 @@ def run(args: dict) -> AugmentResult:
                            args["overwrite"], args["progress"])
 
 
-@user_errors_exit_2
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else list(argv)
-    r = run(parse_key_values(argv, SPEC, required=("root", "out"), usage=USAGE, doc=__doc__))
+def _report(r: AugmentResult) -> None:
     s = r.stats
     print(f"wrote {r.path}: {r.sequences} augmented sequences from {r.sources} source sequences in "
           f"{r.seconds:.0f} s ({r.per_minute:.1f} per minute); target error {100 * s['target_error_m']:.2f} cm, "
           f"contacts kept {100 * s['contact_kept']:.0f} %, bone CV {s['bone_cv']:.2e}"
           + (f"; skipped: {r.skipped}" if r.skipped else ""))
-    return 0
+
+
+main = tool_main(lambda argv: run(parse_key_values(argv, SPEC, required=("root", "out"), usage=USAGE, doc=__doc__)),
+                 _report)
 
 
 if __name__ == "__main__":

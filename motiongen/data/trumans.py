@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from motiongen.cli import parse_key_values, user_errors_exit_2
+from motiongen.cli import parse_key_values, tool_main
 from motiongen.data.format import DEFAULT_SPLITS
 from motiongen.data.dataset_writer import DatasetWriter
 from motiongen.data.occupancy import OccupancyGrid, near_occupied
@@ -159,12 +159,12 @@ def parse_cli(argv: list[str]) -> dict:
                             usage="motiongen import-trumans release=DIR out=DIR", doc=__doc__.split("CLI:")[1])
 
 
-@user_errors_exit_2
-def main(argv: list[str] | None = None) -> int:
-    kw = parse_cli(sys.argv[1:] if argv is None else list(argv))
-    path = convert_trumans(kw.pop("release"), kw.pop("out"), **kw)
-    print(f"wrote {path}")
-    return 0
+def run(argv: list[str]) -> Path:
+    kw = parse_cli(argv)
+    return convert_trumans(kw.pop("release"), kw.pop("out"), **kw)
+
+
+main = tool_main(run, lambda path: print(f"wrote {path}"))
 
 
 if __name__ == "__main__":

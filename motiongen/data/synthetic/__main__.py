@@ -2,22 +2,20 @@
 
 from __future__ import annotations
 
-import sys
 import time
 
-from motiongen.cli import parse_key_values, user_errors_exit_2
+from motiongen.cli import parse_key_values, tool_main
 
 SPEC = {"out": (str, None), "size": (str, "default"), "seed": (int, 0), "overwrite": (bool, False),
         "workers": (int, None)}
 USAGE = "motiongen synthetic out=DIR [size=default|small] [seed=0] [overwrite=true] [workers=N]"
 
 
-@user_errors_exit_2
-def main(argv: list[str] | None = None) -> None:
+def run(argv: list[str]) -> None:
     from motiongen.data.format import MotionDataset
     from motiongen.data.synthetic import generate
 
-    opts = parse_key_values(sys.argv[1:] if argv is None else argv, SPEC, required=("out",), usage=USAGE,
+    opts = parse_key_values(argv, SPEC, required=("out",), usage=USAGE,
                             doc="Generate the embedded synthetic human-scene dataset into out=DIR.")
     t0 = time.perf_counter()
     root = generate(opts["out"], size=opts["size"], seed=opts["seed"], overwrite=opts["overwrite"],
@@ -26,6 +24,9 @@ def main(argv: list[str] | None = None) -> None:
     minutes = ds.num_frames / ds.fps / 60
     print(f"synthetic dataset at {root}: {len(ds.scenes)} scenes, {len(ds.sequences)} sequences, "
           f"{ds.num_frames} frames ({minutes:.1f} min at {ds.fps:g} fps), generated in {time.perf_counter() - t0:.1f} s")
+
+
+main = tool_main(run)
 
 
 if __name__ == "__main__":
