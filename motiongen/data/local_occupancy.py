@@ -13,6 +13,7 @@ local +z is forward, local +x is the body's left, and p_world = R_y(θ) p_local 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
@@ -239,35 +240,67 @@ def local_occupancy_np(grid: OccupancyGrid, to_world: np.ndarray, spec: LocalGri
     """One window on the CPU (DataLoader workers): to_world (4, 4) → (Hy, Hx, Hz) bool.
 
     objects: (object grid, pose (4, 4) object → world) pairs. Uses the memory-mapped grid
-    directly, so workers share the page cache instead of copying grids.
+    directly, so workers share the page cache instead of copying grids. Training is bound by
+    this function on small models, so per-spec constants are cached and objects are culled by
+    their boxes before any per-point work.
     """
     T = np.asarray(to_world, np.float64)
-    local = spec.points()                                                                # (Hy, Hx, Hz, 3)
-    if _is_yaw_only(torch.from_numpy(T[None])):
+    local = _spec_points(spec)                                                           # (Hy, Hx, Hz, 3)
+    if _is_yaw_only_np(T):
         occ = _columns_np(grid, local, T, outside)
         world = None
     else:
         world = local @ T[:3, :3].T + T[:3, 3]                                           # (Hy, Hx, Hz, 3)
         occ = grid.occupied(world, outside=outside)
     if len(objects):
-        # world AABB of the sampling box from its 8 corners (cheaper than all Hy*Hx*Hz points)
-        box = np.stack(np.meshgrid(spec.x_range, spec.y_range, spec.z_range, indexing="ij"), -1).reshape(-1, 3)
-        box = box @ T[:3, :3].T + T[:3, 3]
-        lo, hi = box.min(0), box.max(0)
+        to_local = invert_rigid(T)
+        axes = _spec_axes(spec)                                                          # x (Hx,), y (Hy,), z (Hz,)
     for obj, pose in objects:
         pose = np.asarray(pose, np.float64)
-        corners = np.stack(np.meshgrid(*obj.bounds.T, indexing="ij"), -1).reshape(-1, 3)   # (8, 3) object frame
-        wc = corners @ pose[:3, :3].T + pose[:3, 3]
-        o_lo, o_hi = wc.min(0), wc.max(0)
-        if np.any(o_hi < lo) or np.any(o_lo > hi):
+        # Cull in the body frame: the object's box there bounds a block of the regular local
+        # grid. Points of the block outside the object's grid read False (outside=False), so
+        # any block containing the object gives the same answer as testing every point.
+        M = to_local @ pose                                                              # object -> local
+        c = obj.bounds[_CORNERS, _AXES] @ M[:3, :3].T + M[:3, 3]                         # (8, 3) local
+        lo, hi = c.min(0) - _CULL_MARGIN, c.max(0) + _CULL_MARGIN
+        (i0, i1), (j0, j1), (k0, k1) = (np.searchsorted(ax, [lo[d], hi[d]], side="left")
+                                        for d, ax in enumerate(axes))
+        if i0 >= i1 or j0 >= j1 or k0 >= k1:
             continue                       # small objects are usually nowhere near the window goal
-        if world is None:
-            world = local @ T[:3, :3].T + T[:3, 3]                                       # (Hy, Hx, Hz, 3)
-        near = np.all((world >= o_lo) & (world <= o_hi), axis=-1)                       # (Hy, Hx, Hz)
+        block = local[j0:j1, i0:i1, k0:k1]                                               # (hy, hx, hz, 3)
+        world = block @ T[:3, :3].T + T[:3, 3]
         inv = invert_rigid(pose)
-        p = world[near]
-        occ[near] |= obj.occupied(p @ inv[:3, :3].T + inv[:3, 3], outside=False)
+        hit = obj.occupied(world @ inv[:3, :3].T + inv[:3, 3], outside=False)           # (hy, hx, hz)
+        occ[j0:j1, i0:i1, k0:k1] |= hit
     return occ
+
+
+# Index arrays picking the 8 corners (8, 3) out of a (2, 3) [lo, hi] box: b[_CORNERS, _AXES].
+_CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])        # (8, 3)
+_AXES = np.arange(3)[None].repeat(8, 0)                                                 # (8, 3)
+
+
+@lru_cache(maxsize=8)
+def _spec_points(spec: LocalGridSpec) -> np.ndarray:
+    """spec.points(), computed once per spec (read-only)."""
+    p = spec.points()
+    p.flags.writeable = False
+    return p
+
+
+_CULL_MARGIN = 1e-6   # metres; rounding of the two transforms must not cut a point of the object
+
+
+@lru_cache(maxsize=8)
+def _spec_axes(spec: LocalGridSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """spec.axes(), computed once per spec."""
+    return spec.axes()
+
+
+def _is_yaw_only_np(T: np.ndarray) -> bool:
+    """numpy twin of `_is_yaw_only` for one (4, 4) frame (same tolerance)."""
+    return bool((abs(T[1, 0]) < 1e-6) and (abs(T[1, 1] - 1.0) < 1e-6) and (abs(T[1, 2]) < 1e-6)
+                and (abs(T[0, 1]) < 1e-6) and (abs(T[2, 1]) < 1e-6))
 
 
 def _columns_np(grid: OccupancyGrid, local: np.ndarray, T: np.ndarray, outside: bool) -> np.ndarray:
