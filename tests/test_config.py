@@ -42,7 +42,10 @@ def test_model_presets_compose_from_the_registry(preset):
 def test_data_options(data):
     d = data_config(_compose(overrides=[f"data={data}"]))
     assert d.source in ("synthetic", "trumans", "dataset")
-    assert window_config(_compose()).length == 16 and mask_config(_compose()).max_transition == 2
+    paper = _compose(overrides=["experiment=paper"])        # the public code's 10 fps windows
+    assert (window_config(paper).length, window_config(paper).stride, mask_config(paper).max_transition) == (16, 3, 2)
+    demo = _compose()                                         # the demo's 15 fps windows, same 1.5 s
+    assert (window_config(demo).length, window_config(demo).stride, mask_config(demo).max_transition) == (24, 2, 3)
 
 
 def test_unknown_key_is_rejected():

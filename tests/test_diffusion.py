@@ -141,6 +141,31 @@ def test_training_loss_shows_clean_known_entries_and_ignores_them():
     torch.testing.assert_close(mse, (noise[~mask] ** 2).mean())
 
 
+def test_velocity_loss_known_answers():
+    """x0 prediction: a constant offset has no velocity error; a ±e zig-zag has |Δ| = 2e on every
+    free frame pair, and pairs touching a pinned frame are left out."""
+    x0 = torch.randn(2, 6, 4, dtype=D64)
+    t = torch.tensor([10, 60])
+    noise = torch.zeros_like(x0)
+    zig = 0.1 * (-1.0) ** torch.arange(6, dtype=D64)[None, :, None]          # (1, L, 1)
+
+    def model_for(offset):
+        return lambda x, t, cond, known_mask=None: x0 + offset
+
+    d = _diff(loss="mse", velocity_weight=2.0)
+    flat = d.training_losses(model_for(0.3), x0, t, None, noise=noise)
+    assert float(flat["velocity"]) == pytest.approx(0.0, abs=1e-12)
+    torch.testing.assert_close(flat["loss"], torch.tensor(0.09, dtype=D64))     # main loss only
+    z = d.training_losses(model_for(zig), x0, t, None, noise=noise)
+    assert float(z["velocity"]) == pytest.approx(0.04)                          # (2 · 0.1)^2
+    torch.testing.assert_close(z["loss"], torch.tensor(0.01 + 2.0 * 0.04, dtype=D64))
+    mask = torch.zeros(2, 6, 4, dtype=torch.bool)
+    mask[:, :2] = True                                                          # two transition frames
+    wild = model_for(torch.where(mask, 5.0, 0.0).to(D64))                       # wrong only where pinned
+    assert float(d.training_losses(wild, x0, t, None, known_mask=mask, noise=noise)["velocity"]) == 0.0
+    assert "velocity" not in _diff().training_losses(model_for(zig), x0, t, None, noise=noise)
+
+
 # -- masks ------------------------------------------------------------------------------------
 def test_known_mask_layout():
     m = known_mask(2, 6, 22, transition=torch.tensor([0, 2]), goal_xz=True, goal_y=torch.tensor([False, True]),

@@ -154,7 +154,26 @@ class GaussianDiffusion:
         name = f"{self.cfg.loss}_{self.cfg.prediction}"
         terms = {"loss": main, name: main.detach(), f"mse_{self.cfg.prediction}": mse,
                  "free_fraction": free_fraction}
+        if self.cfg.velocity_weight > 0:
+            vel = self._velocity_loss(out, x_t, t, x0, free, channel_weights)
+            terms["loss"] = main + self.cfg.velocity_weight * vel
+            terms["velocity"] = vel.detach()
         return terms
+
+    def _velocity_loss(self, out: Tensor, x_t: Tensor, t: Tensor, x0: Tensor, free: Tensor,
+                       channel_weights: Tensor | None) -> Tensor:
+        """Loss between frame differences (B, L-1, D) of x̂0 and of x0, over pairs of frames that
+        are both free (a pinned frame's difference is the model's to match, not to learn)."""
+        x0_hat = self.predict_x0_eps(out, x_t, t)[0]
+        d_hat, d = x0_hat[:, 1:] - x0_hat[:, :-1], x0[:, 1:] - x0[:, :-1]                      # (B, L-1, D)
+        if self.cfg.loss == "huber":
+            per = F.huber_loss(d_hat, d, reduction="none", delta=self.cfg.huber_delta)
+        else:
+            per = F.mse_loss(d_hat, d, reduction="none")
+        w = free[:, 1:] * free[:, :-1]
+        if channel_weights is not None:
+            w = w * channel_weights.to(out.dtype)
+        return (per * w).sum() / w.sum().clamp(min=1e-8)
 
     # -- sampling (thin wrapper; see samplers.py) -------------------------------------------
     def sample(self, model, shape, cond, known=None, known_mask=None, sampler="ddim", steps=25,

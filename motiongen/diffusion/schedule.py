@@ -31,6 +31,10 @@ class DiffusionConfig:
     prediction: str = "x0"           # "x0" | "eps" (paper) | "v"
     loss: str = "huber"              # "huber" (paper) | "mse"
     huber_delta: float = 1.0
+    # Weight of a loss on the frame-to-frame differences of the predicted clean window against
+    # the data's (MDM's velocity loss), added to the main loss; 0 = off (the public code).
+    # Penalises the frame-level jitter a small model's windows carry (docs/quality.md).
+    velocity_weight: float = 0.0
     clip_x0: float | None = 1.0      # clamp predicted x0 to ±clip while sampling (data is in [-1, 1]); None = off
 
 
