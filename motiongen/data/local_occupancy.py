@@ -224,10 +224,13 @@ def _to_world(T: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
     return p @ T[:, :3, :3].transpose(-1, -2) + T[:, None, :3, 3]
 
 
+YAW_TOL = 1e-6   # how far a frame's y axis may be from world y and still count as yaw-only
+
+
 def _is_yaw_only(T: torch.Tensor) -> bool:
     """All rotations in T (B, 4, 4) are about y (the contract for body frames)."""
     e = torch.tensor([0.0, 1.0, 0.0], dtype=T.dtype, device=T.device)
-    return bool(torch.all((T[:, 1, :3] - e).abs() < 1e-6) & torch.all((T[:, :3, 1] - e).abs() < 1e-6))
+    return bool(torch.all((T[:, 1, :3] - e).abs() < YAW_TOL) & torch.all((T[:, :3, 1] - e).abs() < YAW_TOL))
 
 
 def local_occupancy_at(scene: GridBank, position, yaw, spec: LocalGridSpec = LocalGridSpec(), **kw) -> torch.Tensor:
@@ -278,6 +281,7 @@ def local_occupancy_np(grid: OccupancyGrid, to_world: np.ndarray, spec: LocalGri
 # Index arrays picking the 8 corners (8, 3) out of a (2, 3) [lo, hi] box: b[_CORNERS, _AXES].
 _CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])        # (8, 3)
 _AXES = np.arange(3)[None].repeat(8, 0)                                                 # (8, 3)
+_CULL_MARGIN = 1e-6   # metres; rounding of the two transforms must not cut a point of the object
 
 
 @lru_cache(maxsize=8)
@@ -288,9 +292,6 @@ def _spec_points(spec: LocalGridSpec) -> np.ndarray:
     return p
 
 
-_CULL_MARGIN = 1e-6   # metres; rounding of the two transforms must not cut a point of the object
-
-
 @lru_cache(maxsize=8)
 def _spec_axes(spec: LocalGridSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """spec.axes(), computed once per spec."""
@@ -298,9 +299,9 @@ def _spec_axes(spec: LocalGridSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def _is_yaw_only_np(T: np.ndarray) -> bool:
-    """numpy twin of `_is_yaw_only` for one (4, 4) frame (same tolerance)."""
-    return bool((abs(T[1, 0]) < 1e-6) and (abs(T[1, 1] - 1.0) < 1e-6) and (abs(T[1, 2]) < 1e-6)
-                and (abs(T[0, 1]) < 1e-6) and (abs(T[2, 1]) < 1e-6))
+    """numpy twin of `_is_yaw_only` for one (4, 4) frame (no tensor round trip in the workers)."""
+    e = (0.0, 1.0, 0.0)
+    return all(abs(T[1, i] - e[i]) < YAW_TOL and abs(T[i, 1] - e[i]) < YAW_TOL for i in range(3))
 
 
 def _columns_np(grid: OccupancyGrid, local: np.ndarray, T: np.ndarray, outside: bool) -> np.ndarray:

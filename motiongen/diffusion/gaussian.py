@@ -135,10 +135,7 @@ class GaussianDiffusion:
             x_t = torch.where(known_mask, x0 if known is None else known, x_t)
         out = model(x_t, t, cond, known_mask=known_mask)  # (B, L, D)
         target = self.target(x0, noise, t)
-        if self.cfg.loss == "huber":
-            per_entry = F.huber_loss(out, target, reduction="none", delta=self.cfg.huber_delta)
-        else:
-            per_entry = F.mse_loss(out, target, reduction="none")
+        per_entry = self._per_entry(out, target)
         sq = (out.detach() - target) ** 2
         if loss_mask is not None:
             free = loss_mask.to(out.dtype)                                                    # (B, L, D)
@@ -160,16 +157,19 @@ class GaussianDiffusion:
             terms["velocity"] = vel.detach()
         return terms
 
+    def _per_entry(self, out: Tensor, target: Tensor) -> Tensor:
+        """The configured loss (huber or mse) per entry, unreduced."""
+        if self.cfg.loss == "huber":
+            return F.huber_loss(out, target, reduction="none", delta=self.cfg.huber_delta)
+        return F.mse_loss(out, target, reduction="none")
+
     def _velocity_loss(self, out: Tensor, x_t: Tensor, t: Tensor, x0: Tensor, free: Tensor,
                        channel_weights: Tensor | None) -> Tensor:
         """Loss between frame differences (B, L-1, D) of x̂0 and of x0, over pairs of frames that
         are both free (a pinned frame's difference is the model's to match, not to learn)."""
         x0_hat = self.predict_x0_eps(out, x_t, t)[0]
         d_hat, d = x0_hat[:, 1:] - x0_hat[:, :-1], x0[:, 1:] - x0[:, :-1]                      # (B, L-1, D)
-        if self.cfg.loss == "huber":
-            per = F.huber_loss(d_hat, d, reduction="none", delta=self.cfg.huber_delta)
-        else:
-            per = F.mse_loss(d_hat, d, reduction="none")
+        per = self._per_entry(d_hat, d)
         w = free[:, 1:] * free[:, :-1]
         if channel_weights is not None:
             w = w * channel_weights.to(out.dtype)
