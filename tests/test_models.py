@@ -133,6 +133,28 @@ def test_mask_channels_change_the_output():
         assert not torch.allclose(model(x, t, cond, known_mask=m), model(x2, t, cond, known_mask=m))
 
 
+def test_temporal_basis_confines_output_to_low_dct_frequencies():
+    """Known answer from scipy's DCT-II (an independent implementation): with temporal_basis=K
+    every output channel has no energy beyond its first K orthonormal DCT coefficients, in
+    full windows and (same cut-off, round(K l / L) vectors) in shorter ones."""
+    from scipy.fft import dct
+    model = _tiny(temporal_basis=6)
+    x, t, cond = torch.randn(2, L, J * 3), torch.tensor([3, 50]), _cond(2)
+    with torch.no_grad():
+        out = model(x, t, cond).double().numpy()                  # (B, L, D)
+        short = model(x[:, :8], t, cond.__class__(scene=cond.scene, actions=cond.actions[:, :8])).double().numpy()
+    coef = dct(out, type=2, norm="ortho", axis=1)
+    assert abs(coef[:, 6:]).max() < 1e-5 * abs(coef[:, :6]).max()
+    coef = dct(short, type=2, norm="ortho", axis=1)
+    assert abs(coef[:, 3:]).max() < 1e-5 * abs(coef[:, :3]).max()
+    # K = window length is the identity: same weights, same output as no basis
+    full, off = _tiny(temporal_basis=L), _tiny(temporal_basis=0)
+    with torch.no_grad():
+        torch.testing.assert_close(full(x, t, cond), off(x, t, cond))
+    with pytest.raises(ValueError, match="temporal_basis"):
+        _tiny(temporal_basis=L + 1)
+
+
 def test_condition_to_and_concat():
     c = _cond(2).to("cpu")
     cc = c.concat(c.drop_all())

@@ -117,6 +117,8 @@ def test_user_errors_exit_2(dataset, tmp_path):
     assert r.returncode == 2 and "no_such_dataset" in r.stderr and "Traceback" not in r.stderr
     r = _run(_args(dataset, tmp_path, 4, **{"train.batch_size": 100000}))
     assert r.returncode == 2 and "batch_size" in r.stderr
+    r = _run(_args(dataset, tmp_path, 4, **{"model.temporal_basis": 8, "diffusion": "paper"}))   # eps prediction
+    assert r.returncode == 2 and "temporal_basis" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_non_finite_loss_stops_and_keeps_last_checkpoint(dataset, tmp_path):

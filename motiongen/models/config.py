@@ -27,6 +27,10 @@ class ModelConfig:
     norm_first: bool = False        # False = post-LN as PyTorch's default and the reference
     scale_input: bool = True        # input projection multiplied by sqrt(width) (reference)
     mask_channels: bool = True      # pinned entries through their own input columns + the mask (docs/models.md)
+    # Output confined to the lowest `temporal_basis` DCT-II vectors over the window (0 = off,
+    # every frame free): windows smooth by construction, no frame-to-frame jitter at the
+    # window's Nyquist rate (docs/quality.md). Needs x0 prediction.
+    temporal_basis: int = 0
     # Scene encoder: ViT over the local occupancy grid, height slices as channels.
     use_scene: bool = True
     scene_width: int = 64

@@ -7,6 +7,7 @@ diffusion object's business.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -87,6 +88,8 @@ class Denoiser(nn.Module):
         self.blocks = TransformerStack(W, cfg.layers, cfg.heads, cfg.ff, cfg.dropout, cfg.activation,
                                        cfg.norm_first, cfg.attention_dropout)
         self.output = nn.Linear(W, D)
+        if not 0 <= cfg.temporal_basis <= window:
+            raise ValueError(f"model.temporal_basis={cfg.temporal_basis}: expected 0 (off) .. window length {window}")
 
         # Null embeddings start small but non-zero so dropping a condition changes the output
         # from the first step (a zero null would make "dropped" look like "absent").
@@ -179,7 +182,22 @@ class Denoiser(nn.Module):
         tok0 = self.t_embed(t) + enc.token0  # (B, W); token0 may be (1, W) and broadcast
         h = torch.cat([tok0[:, None], h], 1) + self.pos[: L + 1]  # (B, L+1, W)
         h = self.blocks(self.drop(h))
-        return self.output(h[:, 1:])  # (B, L, D); token 0's output is dropped
+        out = self.output(h[:, 1:])  # (B, L, D); token 0's output is dropped
+        if self.cfg.temporal_basis and self.cfg.temporal_basis < self.window:
+            # same cut-off frequency for a shorter window: round(K L / window) vectors
+            k = max(1, round(self.cfg.temporal_basis * L / self.window))
+            out = torch.einsum("st,btd->bsd", lowpass_projection(L, k, out.device, out.dtype), out)
+        return out
+
+
+@functools.lru_cache(maxsize=32)
+def lowpass_projection(length: int, k: int, device, dtype) -> Tensor:
+    """(L, L) orthogonal projection onto the first k orthonormal DCT-II vectors over L frames
+    (frequencies 0 .. (k-1)/(2L) cycles per frame)."""
+    n = torch.arange(length, dtype=torch.float64)
+    basis = torch.cos(math.pi * (n[:, None] + 0.5) * torch.arange(k, dtype=torch.float64)[None] / length)  # (L, k)
+    basis = basis / basis.norm(dim=0, keepdim=True)
+    return (basis @ basis.T).to(device=device, dtype=dtype)
 
 
 def build_model(cfg: ModelConfig, num_joints: int, num_actions: int, window: int,

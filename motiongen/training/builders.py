@@ -50,6 +50,11 @@ def build_from_config(cfg, joint_set: JointSet, action_names: list[str]):
         # DDP its parameters would never get a gradient).
         from dataclasses import replace as _replace
         mcfg = _replace(mcfg, use_scene=False)
+    if not 0 <= mcfg.temporal_basis <= w.length:
+        raise ConfigError(f"model.temporal_basis={mcfg.temporal_basis}: expected 0 (off) .. window.length={w.length}")
+    if mcfg.temporal_basis and dcfg.prediction != "x0":
+        raise ConfigError(f"model.temporal_basis={mcfg.temporal_basis} confines the output to smooth windows, "
+                          f"which only an x0 prediction is; diffusion.prediction={dcfg.prediction}")
     layout = Layout.for_window(w, joint_set)
     model = build_model(mcfg, num_joints=joint_set.num_joints, num_actions=len(action_names), window=w.length,
                         scene_res=(w.grid_res[1], w.grid_res[0], w.grid_res[2]), channels=layout.channels)
