@@ -143,7 +143,8 @@ def test_training_loss_shows_clean_known_entries_and_ignores_them():
 
 def test_velocity_loss_known_answers():
     """x0 prediction: a constant offset has no velocity error; a ±e zig-zag has |Δ| = 2e on every
-    free frame pair, and pairs touching a pinned frame are left out."""
+    free frame pair; a pinned frame counts with its pinned value (the seam), whatever the model
+    predicted there, and pairs of two pinned frames are left out."""
     x0 = torch.randn(2, 6, 4, dtype=D64)
     t = torch.tensor([10, 60])
     noise = torch.zeros_like(x0)
@@ -163,6 +164,11 @@ def test_velocity_loss_known_answers():
     mask[:, :2] = True                                                          # two transition frames
     wild = model_for(torch.where(mask, 5.0, 0.0).to(D64))                       # wrong only where pinned
     assert float(d.training_losses(wild, x0, t, None, known_mask=mask, noise=noise)["velocity"]) == 0.0
+    # right everywhere but offset by c on the free frames: only the seam pair (frame 1 -> 2)
+    # differs, by c, in each of the 4 channels; 3 free pairs + the seam = 4 pairs counted
+    shifted = model_for(torch.where(mask, 0.0, 0.3).to(D64))
+    v = d.training_losses(shifted, x0, t, None, known_mask=mask, noise=noise)["velocity"]
+    assert float(v) == pytest.approx(0.09 / 4)
     assert "velocity" not in _diff().training_losses(model_for(zig), x0, t, None, noise=noise)
 
 
