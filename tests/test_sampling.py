@@ -154,3 +154,25 @@ def test_one_body_across_seams_whatever_the_network_predicts():
         # the SMPL-X parameters pose exactly the output joints
         b = m.bodies[s]
         assert b.joints.shape == m.joints[s].shape and np.allclose(b.joints, m.joints[s])
+
+
+def test_blend_seam_continues_the_pinned_velocity():
+    from motiongen.sampling.assemble import blend_seam
+
+    # pinned frames 0..3 move at v per frame; the network's frames 4.. also move at v but start
+    # d off the continuation: a velocity jump δ = d at the seam.
+    k, n, L = 4, 6, 16
+    v, d = np.array([0.03, 0.0, -0.01]), np.array([0.05, 0.02, 0.0])
+    t = np.arange(L, dtype=np.float64)[:, None]
+    x = (t * v + (t >= k) * d)[None, :, None, :].repeat(2, axis=2)                    # (1, L, 2, 3)
+    out = blend_seam(x, k, n)
+    np.testing.assert_array_equal(out[:, :k], x[:, :k])                              # pinned untouched
+    np.testing.assert_allclose(out[0, k, 0], x[0, k - 1, 0] + v, atol=1e-12)         # C1 at the seam
+    np.testing.assert_array_equal(out[:, k + n:], x[:, k + n:])                      # faded out
+    # the correction's own acceleration: raised cosine, at most |δ| (1 - cos(π/n)) per frame²
+    acc = np.abs(np.diff(out[0, :, 0], n=2, axis=0)).max(0)
+    assert np.all(acc <= np.abs(d) * (1 - np.cos(np.pi / n)) + 1e-12)
+    assert np.abs(np.diff(x[0, :, 0], n=2, axis=0)).max() == pytest.approx(np.abs(d).max())
+    # nothing to carry without two pinned frames, or with no frames to fade over
+    np.testing.assert_array_equal(blend_seam(x, 1, n), x)
+    np.testing.assert_array_equal(blend_seam(x, k, 0), x)

@@ -14,6 +14,27 @@ from motiongen.skeleton import NUM_BODY_JOINTS
 from motiongen.spans import true_runs
 
 
+def blend_seam(window: np.ndarray, k: int, frames: int) -> np.ndarray:
+    """Carry the pinned frames' velocity into the free ones: (S, L, J, 3) -> same, new array.
+
+    window: frames 0..k-1 pinned (the previous episode's last frames), k.. the network's. The
+    velocity jump at the seam, δ = (x[k] - x[k-1]) - (x[k-1] - x[k-2]) per joint, is taken out
+    of frame k and faded over the next `frames` free frames with a raised cosine (weights 1 ..
+    0), so frame k continues the pinned frames at constant velocity and the correction's own
+    acceleration stays ~δ π² / (2 frames²) per frame². The network places the first free frame
+    a few centimetres off the continuation of the pinned ones (measured: ~8x the data's
+    acceleration there, docs/quality.md); without this every episode seam is a jolt.
+    k < 2 (no velocity to carry) or frames < 1 leaves the window as it is."""
+    out = np.array(window, copy=True)
+    n = min(int(frames), out.shape[1] - k)
+    if k < 2 or n < 1:
+        return out
+    delta = (out[:, k] - out[:, k - 1]) - (out[:, k - 1] - out[:, k - 2])                # (S, J, 3)
+    w = 0.5 * (1.0 + np.cos(np.pi * np.arange(n) / n))                                     # (n,) 1 -> ~0
+    out[:, k:k + n] -= w[None, :, None, None] * delta[:, None]
+    return out
+
+
 def output_times(num_model_frames: int, model_fps: float, out_fps: float) -> tuple[np.ndarray, np.ndarray]:
     """(t_out (T,) seconds, nearest model frame (T,) int) of the output frames."""
     T = int(math.floor((num_model_frames - 1) * out_fps / model_fps + 1e-6)) + 1
@@ -68,11 +89,11 @@ def planted_at_output(stance: np.ndarray, joints: np.ndarray, contact_joints, mo
 
 
 def solve_bodies(body, joints: np.ndarray, rot_model: torch.Tensor, planted: np.ndarray | None,
-                 contact_joints, model_fps: float, out_fps: float, reach: list | None = None) -> list:
+                 contact_joints, model_fps: float, out_fps: float, reach: list | None = None, cfg=None) -> list:
     """The final solve, per sample: joints (S, T, J, 3) to follow at the output rate (resampled
     projected frames), rot_model (S, Tm, 22, 3, 3) the episodes' rotations (twist hints),
-    planted (S, T, C) or None, reach: per sample a `reach_targets` tuple or None. Returns one
-    `BodyMotion` per sample."""
+    planted (S, T, C) or None, reach: per sample a `reach_targets` tuple or None, cfg: the
+    solve's RefineConfig (None: body.solve.SOLVE_CONFIG). Returns one `BodyMotion` per sample."""
     S, T = joints.shape[:2]
     _, near = output_times(rot_model.shape[1], model_fps, out_fps)
     out = []
@@ -80,5 +101,5 @@ def solve_bodies(body, joints: np.ndarray, rot_model: torch.Tensor, planted: np.
         X = torch.as_tensor(joints[s, :, :NUM_BODY_JOINTS], dtype=body.rest.dtype)        # (T, 22, 3)
         R0 = analytic_init(X, body.rest[s], rot_model[s, near].to(X.dtype))              # (T, 22, 3, 3)
         out.append(body.solve(s, joints[s], R0, None if planted is None else planted[s], contact_joints,
-                              reach=None if reach is None else reach[s]))
+                              cfg=cfg, reach=None if reach is None else reach[s]))
     return out

@@ -38,6 +38,8 @@ Improvements over the reference loop (DESIGN.md §3):
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 import time
 import warnings
@@ -50,6 +52,7 @@ from motiongen.diffusion.masks import known_mask, replace_mask
 from motiongen.errors import ConfigError
 from motiongen.geometry import canonical_frame, invert_rigid, local_to_world, transform_points
 from motiongen.routing import WalkableMap
+from motiongen.sampling.assemble import blend_seam
 from motiongen.sampling.goals import Goal, Route, check_actions, plan_route
 from motiongen.sampling.motion import Episode, LoopConfig, Motion, SamplerSettings
 from motiongen.sampling.interactions import hand_targets, merge_targets, seat_height, seat_shift
@@ -229,13 +232,15 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
                               guidance_scale=sampler.guidance_scale, generator=generator)
         local, stance = layout.decode(stats.denormalize(x0.float().cpu().numpy()).astype(np.float64))
         raw = transform_points(Tw[:, None], local)                                           # (S, L, J, 3) world
-        world, rot = raw, None
+        # the network's joints stay in `raw`; the clean-up starts with the seam
+        world = transform_points(Tw[:, None], blend_seam(local, kk, round(loop.seam_blend * model_fps)))
+        rot = None
         if loop.project:
             if body is None:
                 from motiongen.body.solve import MotionBody
 
                 body = MotionBody.estimate(body_model, loaded.joint_set, raw)
-            world, rot, _ = body.project(raw, None if tail_rot is None else tail_rot[:, -1])
+            world, rot, _ = body.project(world, None if tail_rot is None else tail_rot[:, -1])
         if kk:
             # The pinned frames come back as the previous frames up to float32 rounding of the
             # normalised values; keep the exact originals so seams carry no rounding jitter.
@@ -383,9 +388,13 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
     bodies = None
     if body is not None:
         hands = hand_targets(out, model_labels[:, near], names, loop.hand_actions, objects, scene) or [None] * S
+        from motiongen.body.solve import SOLVE_CONFIG, smoothness_for_rate
+
+        w = smoothness_for_rate(model_fps) if loop.solve_smoothness is None else float(loop.solve_smoothness)
         bodies = solve_bodies(body, out, torch.cat(rots, 1), planted if loop.foot_lock else None,
                               layout.contact_joints, model_fps, loop.out_fps,
-                              [merge_targets(h, p) for h, p in zip(hands, seats)])
+                              [merge_targets(h, p) for h, p in zip(hands, seats)],
+                              cfg=dataclasses.replace(SOLVE_CONFIG, w_smooth_joints=w))
         out = np.stack([b.joints for b in bodies])
     to_out = lambda m: np.where(m >= 0, np.round(m * ratio).astype(np.int64), -1)            # noqa: E731
     kept = episodes[first_kept:]
