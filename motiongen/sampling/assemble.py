@@ -35,6 +35,14 @@ def blend_seam(window: np.ndarray, k: int, frames: int) -> np.ndarray:
     return out
 
 
+def seam_blend_for_rate(model_fps: float) -> float:
+    """`loop.seam_blend` = None: 0.4 s for a model at 15 fps or more, off below. Measured on the
+    4-scene static check (benchmarks/motion_spectrum.py): the 15 fps demo's PSKL 5.6x -> 4.9x
+    with skating 0.082 -> 0.089; the 10 fps quality model gains nothing (5.5x/4.8x -> 5.7x/4.4x)
+    and skates more (0.074 -> 0.095): at 10 fps 0.4 s is most of a window's free frames."""
+    return 0.4 if model_fps >= 15.0 - 1e-6 else 0.0
+
+
 def output_times(num_model_frames: int, model_fps: float, out_fps: float) -> tuple[np.ndarray, np.ndarray]:
     """(t_out (T,) seconds, nearest model frame (T,) int) of the output frames."""
     T = int(math.floor((num_model_frames - 1) * out_fps / model_fps + 1e-6)) + 1
