@@ -40,21 +40,9 @@ SHAPE_PRIOR = 1e-3
 # with the predicted joints, and joint acceleration (w_smooth_joints) keeps the moments a foot
 # is put down or lifted from jerking; joint centres stay 0.3 cm above the floor (y = 0, the
 # scenes' convention; a planted toe joint of the data sits 2 cm up). The sampler sets
-# w_smooth_joints by the model's frame rate (`smoothness_for_rate`).
+# w_smooth_joints by the model's frame rate (`sampling.assemble.solve_smoothness_for_rate`).
 SOLVE_CONFIG = RefineConfig(max_steps=80, w_contact=100.0, w_reach=30.0, w_smooth_joints=5.0, w_floor=1000.0, floor_y=0.003,
                             optimize_betas=False, w_prior=1e-3, threads=1)
-
-
-def smoothness_for_rate(model_fps: float) -> float:
-    """The final solve's joint-acceleration weight for a model of this frame rate (what
-    `loop.solve_smoothness` = None uses). A model at 15 fps or more puts its frame-level jitter at
-    5-7.5 Hz, above the body's steps: a strong weight (100) takes it out, PSKL 8x -> 5x the
-    data's split-half value with the same foot skating (demo, docs/quality.md). At 10 fps the
-    jitter sits at 3-5 Hz with the swing of the legs, and the same weight flattens the swing
-    (quality model: skating 0.077 -> 0.177), so lower rates keep the light 5. Not 200: within
-    80 steps that solve has not converged (a standing body with one locked foot strays 1.05 cm
-    from its prediction; tests/test_body_solve.py allows 1)."""
-    return 100.0 if model_fps >= 15.0 - 1e-6 else SOLVE_CONFIG.w_smooth_joints
 
 
 @dataclass

@@ -35,12 +35,30 @@ def blend_seam(window: np.ndarray, k: int, frames: int) -> np.ndarray:
     return out
 
 
+# Frame rate from which a model's frame-level jitter (at 5-7.5 Hz) sits above the body's steps,
+# so the clean-up may smooth it away; below it (10 fps: 3-5 Hz) the jitter shares the legs'
+# swing band and smoothing flattens the swing into skating (docs/quality.md).
+SMOOTHABLE_FPS = 15.0
+
+
 def seam_blend_for_rate(model_fps: float) -> float:
-    """`loop.seam_blend` = None: 0.4 s for a model at 15 fps or more, off below. Measured on the
-    4-scene static check (benchmarks/motion_spectrum.py): the 15 fps demo's PSKL 5.6x -> 4.9x
-    with skating 0.082 -> 0.089; the 10 fps quality model gains nothing (5.5x/4.8x -> 5.7x/4.4x)
-    and skates more (0.074 -> 0.095): at 10 fps 0.4 s is most of a window's free frames."""
-    return 0.4 if model_fps >= 15.0 - 1e-6 else 0.0
+    """`loop.seam_blend` = None: 0.4 s for a model at SMOOTHABLE_FPS or more, off below. Measured
+    on the 4-scene static check (benchmarks/motion_spectrum.py): the 15 fps demo's PSKL 5.6x ->
+    4.9x with skating 0.082 -> 0.089; the 10 fps quality model gains nothing (5.5x/4.8x ->
+    5.7x/4.4x) and skates more (0.074 -> 0.095): at 10 fps 0.4 s is most of a window's free frames."""
+    return 0.4 if model_fps >= SMOOTHABLE_FPS - 1e-6 else 0.0
+
+
+def solve_smoothness_for_rate(model_fps: float) -> float:
+    """`loop.solve_smoothness` = None: the final solve's joint-acceleration weight. At
+    SMOOTHABLE_FPS or more a strong weight (100) takes the network's jitter out, PSKL 8x -> 5x
+    the data's split-half value with the same foot skating (demo); below it keeps the light 5 of
+    SOLVE_CONFIG (the 10 fps quality model skated 0.077 -> 0.177 with 100). Not 200: within 80
+    steps that solve has not converged (a standing body with one locked foot strays 1.05 cm from
+    its prediction; tests/test_body_solve.py allows 1)."""
+    from motiongen.body.solve import SOLVE_CONFIG
+
+    return 100.0 if model_fps >= SMOOTHABLE_FPS - 1e-6 else SOLVE_CONFIG.w_smooth_joints
 
 
 def output_times(num_model_frames: int, model_fps: float, out_fps: float) -> tuple[np.ndarray, np.ndarray]:

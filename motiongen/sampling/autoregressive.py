@@ -39,7 +39,6 @@ Improvements over the reference loop (DESIGN.md §3):
 from __future__ import annotations
 
 import dataclasses
-
 import math
 import time
 import warnings
@@ -52,7 +51,7 @@ from motiongen.diffusion.masks import known_mask, replace_mask
 from motiongen.errors import ConfigError
 from motiongen.geometry import canonical_frame, invert_rigid, local_to_world, transform_points
 from motiongen.routing import WalkableMap
-from motiongen.sampling.assemble import blend_seam, seam_blend_for_rate
+from motiongen.sampling.assemble import blend_seam, seam_blend_for_rate, solve_smoothness_for_rate
 from motiongen.sampling.goals import Goal, Route, check_actions, plan_route
 from motiongen.sampling.motion import Episode, LoopConfig, Motion, SamplerSettings
 from motiongen.sampling.interactions import hand_targets, merge_targets, seat_height, seat_shift
@@ -233,8 +232,9 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
                               guidance_scale=sampler.guidance_scale, generator=generator)
         local, stance = layout.decode(stats.denormalize(x0.float().cpu().numpy()).astype(np.float64))
         raw = transform_points(Tw[:, None], local)                                           # (S, L, J, 3) world
-        # the network's joints stay in `raw`; the clean-up starts with the seam
-        world = transform_points(Tw[:, None], blend_seam(local, kk, round(blend_s * model_fps)))
+        # the network's joints stay in `raw`; the clean-up starts with the seam (a second
+        # difference, so blending in the world frame equals blending in the window's)
+        world = blend_seam(raw, kk, round(blend_s * model_fps))
         rot = None
         if loop.project:
             if body is None:
@@ -389,9 +389,9 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
     bodies = None
     if body is not None:
         hands = hand_targets(out, model_labels[:, near], names, loop.hand_actions, objects, scene) or [None] * S
-        from motiongen.body.solve import SOLVE_CONFIG, smoothness_for_rate
+        from motiongen.body.solve import SOLVE_CONFIG
 
-        w = smoothness_for_rate(model_fps) if loop.solve_smoothness is None else float(loop.solve_smoothness)
+        w = solve_smoothness_for_rate(model_fps) if loop.solve_smoothness is None else float(loop.solve_smoothness)
         bodies = solve_bodies(body, out, torch.cat(rots, 1), planted if loop.foot_lock else None,
                               layout.contact_joints, model_fps, loop.out_fps,
                               [merge_targets(h, p) for h, p in zip(hands, seats)],
