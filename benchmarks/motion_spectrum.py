@@ -69,7 +69,8 @@ def main(argv) -> None:
     from motiongen.sampling.assemble import resample
     from motiongen.training.builders import load_model
 
-    over = {k[6:]: float(v) for k, v in a.items() if k.startswith("solve.")}
+    # each value in its field's type (max_steps is an int)
+    over = {k[6:]: type(getattr(solve.SOLVE_CONFIG, k[6:]))(float(v)) for k, v in a.items() if k.startswith("solve.")}
     if over:
         solve.SOLVE_CONFIG = dataclasses.replace(solve.SOLVE_CONFIG, **over)
     loop_over = {k[5:]: float(v) for k, v in a.items() if k.startswith("loop.")}

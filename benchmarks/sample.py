@@ -1,12 +1,15 @@
 """Sampling speed and goal-reaching quality per sampler setting (not a timed test).
 
-    python benchmarks/sample.py [ckpt=PATH] [threads=2] [preset=paper] [seconds=20]
+    python benchmarks/sample.py [ckpt=PATH] [threads=2] [preset=paper] [episodes=6] [project=true]
+                                [stride=3] [length=16] [samplers=ddpm-100,ddim-50,ddim-25,ddim-10] [batches=1,8]
 
 Speed: the `paper` preset with random-init weights (speed does not depend on training) on the
 CPU, DDPM-100 vs DDIM-50/25/10, batch 1 and 8: real-time factor = seconds of motion produced
 (all samples) per second of compute, over a straight 10 m walk in an empty scene. The time
 includes everything `sample.py` does to a motion: the per-episode projection onto one body and
-the final body solve (foot lock); `project=false` measures the network alone.
+the final body solve (foot lock); `project=false` measures the network alone. `stride=2
+length=24` gives the model 15 fps windows of the same 1.6 s (the demo's and quality recipe's
+rate), which also sets the rate-dependent clean-up (seam blend, the solve's smoothness weight).
 Quality: with `ckpt=` (a trained checkpoint, e.g. the demo), the goal-reaching error at the
 same step counts on a fixed goal route: pelvis and hips-midpoint error on arrival (both the
 body's own: goals are predicted, not pinned), plus how many goals were reached.
@@ -24,14 +27,15 @@ import torch
 
 
 def _args(argv):
-    out = {"ckpt": None, "threads": "2", "preset": "paper", "episodes": "6", "project": "true"}
+    out = {"ckpt": None, "threads": "2", "preset": "paper", "episodes": "6", "project": "true",
+           "stride": "3", "length": "16", "samplers": "ddpm-100,ddim-50,ddim-25,ddim-10", "batches": "1,8"}
     for a in argv:
         k, _, v = a.partition("=")
         out[k] = v
     return out
 
 
-def _random_loaded(preset: str):
+def _random_loaded(preset: str, stride: int, length: int):
     """A paper-size denoiser with random weights in today's layout (absolute joints + stance
     channels, goal predicted): speed does not depend on training."""
     from motiongen.data.representation import Layout
@@ -41,7 +45,8 @@ def _random_loaded(preset: str):
     from motiongen.models import build_model, model_config
     from motiongen.skeleton import BODY
 
-    window, mask, diffusion = WindowConfig(), MaskConfig(), DiffusionConfig()
+    window, diffusion = WindowConfig(stride=stride, length=length), DiffusionConfig()
+    mask = MaskConfig(max_transition=max(1, round(0.2 * 30 / stride)))      # 0.2 s pinned, as the recipes
     layout = Layout.for_window(window, BODY)
     model = build_model(model_config(preset), 22, 10, window.length, channels=layout.channels)
     center = np.zeros(layout.channels, np.float32)
@@ -58,18 +63,30 @@ def _random_loaded(preset: str):
 SETTINGS = [("ddpm", 100), ("ddim", 50), ("ddim", 25), ("ddim", 10)]
 
 
+def _samplers(spec: str) -> list[tuple[str, int]]:
+    """'ddim-25,ddpm-100' -> [('ddim', 25), ('ddpm', 100)]."""
+    out = []
+    for item in filter(None, spec.split(",")):
+        name, _, steps = item.partition("-")
+        if name not in ("ddpm", "ddim") or not steps.isdigit():
+            sys.exit(f"samplers: expected items like ddim-25 or ddpm-100, got {item!r}")
+        out.append((name, int(steps)))
+    return out
+
+
 def main(argv):
     from motiongen.sampling import Goal, LoopConfig, SamplerSettings, generate
 
     a = _args(argv)
     torch.set_num_threads(int(a["threads"]))
-    loaded = _random_loaded(a["preset"])
+    loaded = _random_loaded(a["preset"], int(a["stride"]), int(a["length"]))
     episodes = int(a["episodes"])
-    print(f"speed: preset={a['preset']}, {torch.get_num_threads()} threads, {episodes} episodes per run, "
+    print(f"speed: preset={a['preset']}, {loaded.fps / int(a['stride']):g} fps windows of {a['length']} frames, "
+          f"{torch.get_num_threads()} threads, {episodes} episodes per run, "
           f"body projection + solve {'on' if a['project'] == 'true' else 'off'}")
     print(f"{'sampler':>10} {'batch':>5} {'motion s':>9} {'wall s':>7} {'RTF':>6}")
-    for sampler, steps in SETTINGS:
-        for batch in (1, 8):
+    for sampler, steps in _samplers(a["samplers"]):
+        for batch in map(int, filter(None, a["batches"].split(","))):
             loop = LoopConfig(warmup=1, max_episodes=episodes - 1, project=a["project"] == "true")
             t = time.perf_counter()
             with warnings.catch_warnings():

@@ -172,6 +172,35 @@ def test_velocity_loss_known_answers():
     assert "velocity" not in _diff().training_losses(model_for(zig), x0, t, None, noise=noise)
 
 
+def test_acceleration_loss_known_answers():
+    """Second differences: a linear drift has a velocity error but no acceleration error; a ±e
+    zig-zag has |Δ²| = 4e; an offset c on the free frames after two pinned ones shows at the two
+    triples that straddle the seam (+c, -c) and nowhere else, all four triples counted."""
+    x0 = torch.randn(2, 6, 4, dtype=D64)
+    t = torch.tensor([10, 60])
+    noise = torch.zeros_like(x0)
+    k = torch.arange(6, dtype=D64)[None, :, None]                                # (1, L, 1)
+
+    def model_for(offset):
+        return lambda x, t, cond, known_mask=None: x0 + offset
+
+    d = _diff(loss="mse", velocity_weight=1.0, acceleration_weight=3.0)
+    ramp = d.training_losses(model_for(0.05 * k), x0, t, None, noise=noise)
+    assert float(ramp["velocity"]) == pytest.approx(0.0025)                     # 0.05^2
+    assert float(ramp["acceleration"]) == pytest.approx(0.0, abs=1e-12)
+    z = d.training_losses(model_for(0.1 * (-1.0) ** k), x0, t, None, noise=noise)
+    assert float(z["acceleration"]) == pytest.approx(0.16)                      # (4 · 0.1)^2
+    torch.testing.assert_close(z["loss"], torch.tensor(0.01 + 0.04 + 3.0 * 0.16, dtype=D64))
+    mask = torch.zeros(2, 6, 4, dtype=torch.bool)
+    mask[:, :2] = True
+    shifted = model_for(torch.where(mask, 0.0, 0.3).to(D64))
+    a = d.training_losses(shifted, x0, t, None, known_mask=mask, noise=noise)["acceleration"]
+    assert float(a) == pytest.approx(2 * 0.09 / 4)
+    assert "acceleration" not in _diff(velocity_weight=1.0).training_losses(model_for(k), x0, t, None, noise=noise)
+    with pytest.raises(ConfigError, match="diffusion.acceleration_weight"):
+        _diff(acceleration_weight=-1.0)
+
+
 # -- masks ------------------------------------------------------------------------------------
 def test_known_mask_layout():
     m = known_mask(2, 6, 22, transition=torch.tensor([0, 2]), goal_xz=True, goal_y=torch.tensor([False, True]),

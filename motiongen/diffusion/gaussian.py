@@ -31,6 +31,9 @@ class GaussianDiffusion:
             raise ConfigError(f"diffusion.prediction: expected one of {PREDICTIONS}, got {cfg.prediction!r}")
         if cfg.loss not in LOSSES:
             raise ConfigError(f"diffusion.loss: expected one of {LOSSES}, got {cfg.loss!r}")
+        for key in ("velocity_weight", "acceleration_weight"):
+            if not getattr(cfg, key) >= 0:
+                raise ConfigError(f"diffusion.{key}: expected a weight >= 0, got {getattr(cfg, key)!r}")
         self.cfg = cfg
         self.num_timesteps = cfg.steps
         self.betas = make_betas(cfg)  # (T,) float64
@@ -151,10 +154,12 @@ class GaussianDiffusion:
         name = f"{self.cfg.loss}_{self.cfg.prediction}"
         terms = {"loss": main, name: main.detach(), f"mse_{self.cfg.prediction}": mse,
                  "free_fraction": free_fraction}
-        if self.cfg.velocity_weight > 0:
-            vel = self._velocity_loss(out, x_t, t, x0, free, channel_weights)
-            terms["loss"] = main + self.cfg.velocity_weight * vel
-            terms["velocity"] = vel.detach()
+        for order, name, weight in ((1, "velocity", self.cfg.velocity_weight),
+                                    (2, "acceleration", self.cfg.acceleration_weight)):
+            if weight > 0:
+                term = self._difference_loss(out, x_t, t, x0, free, channel_weights, order)
+                terms["loss"] = terms["loss"] + weight * term
+                terms[name] = term.detach()
         return terms
 
     def _per_entry(self, out: Tensor, target: Tensor) -> Tensor:
@@ -163,18 +168,22 @@ class GaussianDiffusion:
             return F.huber_loss(out, target, reduction="none", delta=self.cfg.huber_delta)
         return F.mse_loss(out, target, reduction="none")
 
-    def _velocity_loss(self, out: Tensor, x_t: Tensor, t: Tensor, x0: Tensor, free: Tensor,
-                       channel_weights: Tensor | None) -> Tensor:
-        """Loss between frame differences (B, L-1, D) of the window as sampling assembles it
-        (x̂0 on free entries, the pinned values elsewhere: x_t holds them) and of x0, over every
-        pair with at least one free frame. The pairs from the last transition frame to the first
-        free one are the seam between episodes: measured, the models that skipped them jumped
-        there by ~10x the data's acceleration (docs/quality.md)."""
+    def _difference_loss(self, out: Tensor, x_t: Tensor, t: Tensor, x0: Tensor, free: Tensor,
+                         channel_weights: Tensor | None, order: int) -> Tensor:
+        """Loss between `order`-th frame differences (B, L-order, D) of the window as sampling
+        assembles it (x̂0 on free entries, the pinned values elsewhere: x_t holds them) and of
+        x0, over every pair (order 1) or triple (order 2) with at least one free frame. Those
+        reaching from the last transition frame into the free ones are the seam between
+        episodes: measured, the models that skipped them jumped there by ~10x the data's
+        acceleration (docs/quality.md)."""
         x0_hat = self.predict_x0_eps(out, x_t, t)[0]
         window = torch.where(free > 0, x0_hat, x_t)                                            # (B, L, D)
-        d_hat, d = window[:, 1:] - window[:, :-1], x0[:, 1:] - x0[:, :-1]                      # (B, L-1, D)
+        d_hat, d = torch.diff(window, n=order, dim=1), torch.diff(x0, n=order, dim=1)          # (B, L-order, D)
         per = self._per_entry(d_hat, d)
-        w = torch.maximum(free[:, 1:], free[:, :-1])
+        L = free.shape[1]
+        w = free[:, :L - order]
+        for k in range(1, order + 1):
+            w = torch.maximum(w, free[:, k:L - order + k])
         if channel_weights is not None:
             w = w * channel_weights.to(out.dtype)
         return (per * w).sum() / w.sum().clamp(min=1e-8)

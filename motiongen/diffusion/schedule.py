@@ -35,6 +35,10 @@ class DiffusionConfig:
     # the data's (MDM's velocity loss), added to the main loss; 0 = off (the public code).
     # Penalises the frame-level jitter a small model's windows carry (docs/quality.md).
     velocity_weight: float = 0.0
+    # The same on second differences (acceleration), every triple with a free frame. Per-frame
+    # independent errors weigh 6x their square here and smooth ones ~0: it targets the 3-8 Hz
+    # excess of the network's windows (docs/quality.md); 0 = off.
+    acceleration_weight: float = 0.0
     clip_x0: float | None = 1.0      # clamp predicted x0 to ±clip while sampling (data is in [-1, 1]); None = off
 
 

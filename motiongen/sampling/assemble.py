@@ -51,14 +51,16 @@ def seam_blend_for_rate(model_fps: float) -> float:
 
 def solve_smoothness_for_rate(model_fps: float) -> float:
     """`loop.solve_smoothness` = None: the final solve's joint-acceleration weight. At
-    SMOOTHABLE_FPS or more a strong weight (100) takes the network's jitter out, PSKL 8x -> 5x
-    the data's split-half value with the same foot skating (demo); below it keeps the light 5 of
-    SOLVE_CONFIG (the 10 fps quality model skated 0.077 -> 0.177 with 100). Not 200: within 80
-    steps that solve has not converged (a standing body with one locked foot strays 1.05 cm from
-    its prediction; tests/test_body_solve.py allows 1)."""
+    SMOOTHABLE_FPS or more a strong weight (200) takes the network's jitter out: on the demo's
+    4-scene static check PSKL 8x (weight 5) -> 4.9x (100) -> 4.4x (200) the data's split-half
+    value, foot skating 0.104 -> 0.089 -> 0.087; below it keeps the light 5 of SOLVE_CONFIG (the
+    10 fps quality model skated 0.077 -> 0.177 with 100). The solve runs a fixed 80 L-BFGS steps
+    and is not converged at any of these weights (on an 11 s demo walk its joints sit a mean
+    3.3 cm from a 600-step solve at weight 100, 3.8 cm at 200): it filters the high frequencies
+    first, which is what this weight is for, at a cost that does not grow with it."""
     from motiongen.body.solve import SOLVE_CONFIG
 
-    return 100.0 if model_fps >= SMOOTHABLE_FPS - 1e-6 else SOLVE_CONFIG.w_smooth_joints
+    return 200.0 if model_fps >= SMOOTHABLE_FPS - 1e-6 else SOLVE_CONFIG.w_smooth_joints
 
 
 def output_times(num_model_frames: int, model_fps: float, out_fps: float) -> tuple[np.ndarray, np.ndarray]:
