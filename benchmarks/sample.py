@@ -26,9 +26,12 @@ import numpy as np
 import torch
 
 
+SETTINGS = [("ddpm", 100), ("ddim", 50), ("ddim", 25), ("ddim", 10)]
+
+
 def _args(argv):
     out = {"ckpt": None, "threads": "2", "preset": "paper", "episodes": "6", "project": "true",
-           "stride": "3", "length": "16", "samplers": "ddpm-100,ddim-50,ddim-25,ddim-10", "batches": "1,8"}
+           "stride": "3", "length": "16", "samplers": ",".join(f"{s}-{n}" for s, n in SETTINGS), "batches": "1,8"}
     for a in argv:
         k, _, v = a.partition("=")
         out[k] = v
@@ -60,9 +63,6 @@ def _random_loaded(preset: str, stride: int, length: int):
                                  mask=mask, device=torch.device("cpu"))
 
 
-SETTINGS = [("ddpm", 100), ("ddim", 50), ("ddim", 25), ("ddim", 10)]
-
-
 def _samplers(spec: str) -> list[tuple[str, int]]:
     """'ddim-25,ddpm-100' -> [('ddim', 25), ('ddpm', 100)]."""
     out = []
@@ -80,20 +80,20 @@ def main(argv):
     a = _args(argv)
     torch.set_num_threads(int(a["threads"]))
     loaded = _random_loaded(a["preset"], int(a["stride"]), int(a["length"]))
-    episodes = int(a["episodes"])
+    episodes, project = int(a["episodes"]), a["project"] == "true"
     print(f"speed: preset={a['preset']}, {loaded.fps / int(a['stride']):g} fps windows of {a['length']} frames, "
           f"{torch.get_num_threads()} threads, {episodes} episodes per run, "
-          f"body projection + solve {'on' if a['project'] == 'true' else 'off'}")
+          f"body projection + solve {'on' if project else 'off'}")
     # one untimed short run first: loading the body model and the first calls' set-up are not
     # sampling speed (without it a lone DDIM-25 run read 1.12 where it reads ~2.4 after others)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         generate(loaded, None, (0, 0), [Goal([0, 100.0])], path="straight", sampler=SamplerSettings("ddim", 2),
-                 loop=LoopConfig(warmup=1, max_episodes=1, project=a["project"] == "true"))
+                 loop=LoopConfig(warmup=1, max_episodes=1, project=project))
     print(f"{'sampler':>10} {'batch':>5} {'motion s':>9} {'wall s':>7} {'RTF':>6}")
     for sampler, steps in _samplers(a["samplers"]):
         for batch in map(int, filter(None, a["batches"].split(","))):
-            loop = LoopConfig(warmup=1, max_episodes=episodes - 1, project=a["project"] == "true")
+            loop = LoopConfig(warmup=1, max_episodes=episodes - 1, project=project)
             t = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")

@@ -154,12 +154,16 @@ class GaussianDiffusion:
         name = f"{self.cfg.loss}_{self.cfg.prediction}"
         terms = {"loss": main, name: main.detach(), f"mse_{self.cfg.prediction}": mse,
                  "free_fraction": free_fraction}
-        for order, name, weight in ((1, "velocity", self.cfg.velocity_weight),
-                                    (2, "acceleration", self.cfg.acceleration_weight)):
-            if weight > 0:
-                term = self._difference_loss(out, x_t, t, x0, free, channel_weights, order)
+        diffs = [(order, key, weight) for order, key, weight in ((1, "velocity", self.cfg.velocity_weight),
+                                                                 (2, "acceleration", self.cfg.acceleration_weight))
+                 if weight > 0]
+        if diffs:
+            # the window as sampling assembles it: x̂0 on free entries, the pinned values (x_t holds them) elsewhere
+            window = torch.where(free > 0, self.predict_x0_eps(out, x_t, t)[0], x_t)         # (B, L, D)
+            for order, key, weight in diffs:
+                term = self._difference_loss(window, x0, free, channel_weights, order)
                 terms["loss"] = terms["loss"] + weight * term
-                terms[name] = term.detach()
+                terms[key] = term.detach()
         return terms
 
     def _per_entry(self, out: Tensor, target: Tensor) -> Tensor:
@@ -168,24 +172,18 @@ class GaussianDiffusion:
             return F.huber_loss(out, target, reduction="none", delta=self.cfg.huber_delta)
         return F.mse_loss(out, target, reduction="none")
 
-    def _difference_loss(self, out: Tensor, x_t: Tensor, t: Tensor, x0: Tensor, free: Tensor,
-                         channel_weights: Tensor | None, order: int) -> Tensor:
-        """Loss between `order`-th frame differences (B, L-order, D) of the window as sampling
-        assembles it (x̂0 on free entries, the pinned values elsewhere: x_t holds them) and of
-        x0, over every pair (order 1) or triple (order 2) with at least one free frame. Those
-        reaching from the last transition frame into the free ones are the seam between
-        episodes: measured, the models that skipped them jumped there by ~10x the data's
-        acceleration (docs/quality.md)."""
-        x0_hat = self.predict_x0_eps(out, x_t, t)[0]
-        window = torch.where(free > 0, x0_hat, x_t)                                            # (B, L, D)
+    def _difference_loss(self, window: Tensor, x0: Tensor, free: Tensor, channel_weights: Tensor | None,
+                         order: int) -> Tensor:
+        """Loss between `order`-th frame differences (B, L-order, D) of the assembled window
+        (B, L, D) and of x0, over every pair (order 1) or triple (order 2) with at least one
+        free frame. Those reaching from the last transition frame into the free ones are the
+        seam between episodes: measured, the models that skipped them jumped there by ~10x the
+        data's acceleration (docs/quality.md)."""
         d_hat, d = torch.diff(window, n=order, dim=1), torch.diff(x0, n=order, dim=1)          # (B, L-order, D)
         per = self._per_entry(d_hat, d)
-        L = free.shape[1]
-        w = free[:, :L - order]
-        for k in range(1, order + 1):
-            w = torch.maximum(w, free[:, k:L - order + k])
+        w = free.unfold(1, order + 1, 1).amax(-1)                                              # (B, L-order, D)
         if channel_weights is not None:
-            w = w * channel_weights.to(out.dtype)
+            w = w * channel_weights.to(window.dtype)
         return (per * w).sum() / w.sum().clamp(min=1e-8)
 
     # -- sampling (thin wrapper; see samplers.py) -------------------------------------------
