@@ -1,10 +1,11 @@
 """Where PSKL comes from: acceleration power per frequency band, data vs generated (not a timed test).
 
     python benchmarks/motion_spectrum.py ckpt=PATH [scenes=91,95,97,100] [setting=static] [pairs=3]
+                                         [sampler=ddim] [steps=10] [eta=0]
                                          [solve.KEY=VALUE ...] [loop.KEY=VALUE ...]
 
-Runs the `evaluate.py` protocol (k = 5, DDIM-10, seed 0) on a few test scenes of one setting and
-prints, for the data, the network's own joints and the output motions:
+Runs the `evaluate.py` protocol (k = 5, DDIM-10 unless sampler=/steps=/eta= say otherwise,
+seed 0) on a few test scenes of one setting and prints, for the data, the network's own joints and the output motions:
 - foot skating (evaluate.py's figure) and grounded-toe slide, what a smoother output must keep;
 - PSKL against the data, in nats and in multiples of the data's split-half value;
 - the share of acceleration power in each frequency band (mean over joints and axes), the
@@ -31,7 +32,8 @@ BANDS = [(0, 2), (2, 3), (3, 5), (5, 8), (8, 15.01)]
 
 
 def _args(argv):
-    out = {"ckpt": None, "scenes": "91,95,97,100", "setting": "static", "pairs": "3"}
+    out = {"ckpt": None, "scenes": "91,95,97,100", "setting": "static", "pairs": "3",
+           "sampler": "ddim", "steps": "10", "eta": "0"}
     for a in argv:
         k, _, v = a.partition("=")
         out[k] = v
@@ -85,8 +87,8 @@ def main(argv) -> None:
     setting, scenes = a["setting"], [int(s) for s in a["scenes"].split(",")]
     pc = ProtocolConfig(k=5, pairs=int(a["pairs"]))
     t0 = time.perf_counter()
-    ev = evaluate(loaded, ds, scenes, pc, settings=[setting], sampler=SamplerSettings("ddim", 10, 0.0, 1.0),
-                  progress=False)
+    sampler = SamplerSettings(a["sampler"], int(a["steps"]), float(a["eta"]), 1.0)
+    ev = evaluate(loaded, ds, scenes, pc, settings=[setting], sampler=sampler, progress=False)
     fps, n = 30.0, pc.pskl_frames
     refs = [m for r in ev.references[setting] for m in r.motions]
     floor = ev.reference[setting]["pskl_gen_ref"]
@@ -97,7 +99,8 @@ def main(argv) -> None:
         rows[f"data at {30 // stride} fps, resampled"] = [resample(m[::stride][None], fps / stride, fps)[0] for m in refs]
     print(f"{a['ckpt']}: setting {setting}, scenes {scenes}, {pc.pairs} pairs x {pc.k} samples, "
           f"{time.perf_counter() - t0:.0f} s; data split-half PSKL {floor:.3f} nats"
-          + (f"; solve {over}" if over else "") + (f"; loop {loop_over}" if loop_over else ""))
+          + f"; {a['sampler']}-{a['steps']} eta {a['eta']}" + (f"; solve {over}" if over else "")
+          + (f"; loop {loop_over}" if loop_over else ""))
     head = "".join(f"{lo:g}-{min(hi, 15):g} Hz".rjust(10) for lo, hi in BANDS)
     from motiongen.eval.metrics import foot_skating_ratio, grounded_slide
     print(f"{'':30s}{'skating':>8s}{'slide':>7s}  (mean over motions; slide m/s, median over grounded toes)")

@@ -175,3 +175,28 @@ def test_video_fps_override_and_bad_style(motion, tmp_path):
     assert len(frames) == 4 and fps == pytest.approx(5.0)                           # frames 0, 6, 12, 18
     with pytest.raises(ValueError, match="style"):
         render_video(tmp_path / "x.mp4", joints, 30.0, style="mesh")
+
+
+def test_frames_drawn_by_worker_processes_arrive_in_order(monkeypatch):
+    import os
+
+    from motiongen.export import video
+
+    monkeypatch.setattr(video, "FRAME_BLOCK", 4)
+    idx = np.arange(0, 30, 2)                                                        # 15 frames, 4 blocks
+    out = list(video._frame_stream(lambda t: np.array([t, os.getpid()]), idx, workers=2))
+    assert [int(f[0]) for f in out] == idx.tolist()
+    assert len({int(f[1]) for f in out}) == 2 and os.getpid() not in {int(f[1]) for f in out}
+    one = list(video._frame_stream(lambda t: np.array([t, os.getpid()]), idx, workers=1))
+    assert {int(f[1]) for f in one} == {os.getpid()}
+
+
+def test_workers_draw_the_same_video_as_one_process(motion, tmp_path, monkeypatch):
+    from motiongen.export import video
+
+    bm, body, joints = motion
+    monkeypatch.setattr(video, "FRAME_BLOCK", 8)                                     # 20 frames: 3 blocks
+    kw = dict(bodies=[body], body_model=bm, planted=PLANTED, contact_joints=CONTACT)
+    one, _ = _frames(render_video(tmp_path / "one.mp4", joints, 30.0, workers=1, **kw))
+    two, _ = _frames(render_video(tmp_path / "two.mp4", joints, 30.0, workers=2, **kw))
+    assert one.shape == (T, H, W, 3) and np.array_equal(one, two)

@@ -9,7 +9,8 @@ skinned mesh (`style="body"`, drawn by `render_body`: shaded, with its shadow an
 feet marked on the floor) or the stick figure (`style="skeleton"`).
 
 Speed: one figure is built once and only artists' data change per frame; the mesh is
-rasterised in numpy and composited onto the drawn frame; frames stream to the encoder. Every
+rasterised in numpy and composited onto the drawn frame; blocks of frames are drawn by forked
+worker processes (one per core, up to 4) and stream in order to the encoder. Every
 frame of the motion is rendered unless `video_fps` asks for fewer. Written as mp4 through
 imageio-ffmpeg when it is available, otherwise as a gif.
 """
@@ -160,7 +161,7 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
                  goals: np.ndarray | None = None, video_fps: float | None = None, size: tuple[int, int] = (800, 352),
                  title: str = "", max_frames: int | None = None, *, bodies: Sequence | None = None,
                  body_model=None, planted: np.ndarray | None = None, contact_joints: Sequence[int] = (),
-                 style: str = "body") -> Path:
+                 style: str = "body", workers: int | None = None) -> Path:
     """Render joints (S, T, J, 3) (or (T, J, 3)) to `path` (.mp4, or .gif when ffmpeg is missing
     or the suffix asks for it). Sample 0 drives the cameras; others are drawn alongside.
 
@@ -170,7 +171,9 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
     transl (T, 3), betas (nβ,) of `body_model`, posing exactly `joints`) as meshes, falling back
     to the skeleton when either is None; "skeleton" draws the stick figure.
     planted (S, T, C) bool: the foot joints `contact_joints` (C,) held on the floor, marked
-    per frame. Returns the path actually written (the suffix may change to .gif)."""
+    per frame. workers: processes drawing frames (None: up to 4, one per available core; 1:
+    this process only); the frames are the same whichever process draws them. Returns the path
+    actually written (the suffix may change to .gif)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -200,7 +203,7 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
     if style == "body" and bodies is not None and body_model is not None:
         if len(bodies) != S or any(len(b.transl) != T for b in bodies):
             raise ValueError(f"bodies: expected {S} bodies of {T} frames (one per sample of joints)")
-        meshes = rb.BodyMeshes(body_model, bodies, frames_idx)
+        meshes = rb.BodyMeshes(body_model, bodies, frames_idx, chunk=FRAME_BLOCK)
     contact_joints = [int(c) for c in contact_joints]
     anchors = None
     if planted is not None and len(contact_joints):
@@ -293,49 +296,90 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
         ok = (d > 0.2).all(1) & (np.abs(uv) < 4).all(axis=(1, 2))
         return uv[ok]
 
+    def draw(t: int) -> np.ndarray:                                                     # frame t (H, W, 3) uint8
+        # Every artist that changes is set here from t alone: any process can draw any frame.
+        p = joints[0, t, PELVIS]
+        half = 2.5
+        ax_top.set_xlim(p[0] - half, p[0] + half)
+        ax_top.set_ylim(p[2] + half * 0.95, p[2] - half * 0.95)
+        for s in range(S):
+            trails[s].set_data(joints[s, : t + 1, PELVIS, 0], joints[s, : t + 1, PELVIS, 2])
+            top_bones[s].set_segments(joints[s, t][bone_idx][..., [0, 2]])                # (B, 2, 2)
+        cam = _Camera(p, heading[t])
+        cam_floor.set_segments(proj_segments(cam, grid_segs))
+        verts, colours = _visible_faces(cam, p, faces, normals, face_rgb)
+        cam_faces.set_verts(verts)
+        cam_faces.set_facecolor(colours)
+        if path3 is not None:
+            uv, d = cam.project(path3)
+            uv = np.where((d > 0.2)[:, None], uv, np.nan)
+            cam_path.set_data(uv[:, 0], uv[:, 1])
+        if goals3 is not None:
+            uv, d = cam.project(goals3)
+            uv = uv[d > 0.2]
+            cam_goals.set_data(uv[:, 0], uv[:, 1])
+        if anchors is not None:
+            a = anchors[:, t].reshape(-1, 2)
+            a = a[~np.isnan(a[:, 0])]                                                    # (N, 2) planted
+            top_feet.set_data(a[:, 0], a[:, 1])
+            if layer is None:
+                uv, d = cam.project(rb.disc_triangles(a, n=16)[:, 1].reshape(-1, 3))     # rim points
+                cam_discs.set_verts(list(uv.reshape(-1, 16, 2)) if (d > 0.2).all() else [])
+        if layer is None:
+            for s in range(S):
+                uv, d = cam.project(joints[s, t])
+                cam_bones[s].set_segments(uv[bone_idx][(d[bone_idx] > 0.2).all(1)])
+        time_text.set_text(f"{t / fps:5.1f} s")
+        fig.canvas.draw()
+        frame = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()                     # (H, W, 3)
+        if layer is not None:
+            layer.draw(frame, cam, *_panel_pixels(ax_cam, frame.shape[0]), t)
+        return frame
+
     writer = _open_writer(path, out_fps)
     try:
-        for t in frames_idx:
-            p = joints[0, t, PELVIS]
-            half = 2.5
-            ax_top.set_xlim(p[0] - half, p[0] + half)
-            ax_top.set_ylim(p[2] + half * 0.95, p[2] - half * 0.95)
-            for s in range(S):
-                trails[s].set_data(joints[s, : t + 1, PELVIS, 0], joints[s, : t + 1, PELVIS, 2])
-                top_bones[s].set_segments(joints[s, t][bone_idx][..., [0, 2]])                # (B, 2, 2)
-            cam = _Camera(p, heading[t])
-            cam_floor.set_segments(proj_segments(cam, grid_segs))
-            verts, colours = _visible_faces(cam, p, faces, normals, face_rgb)
-            cam_faces.set_verts(verts)
-            cam_faces.set_facecolor(colours)
-            if path3 is not None:
-                uv, d = cam.project(path3)
-                uv = np.where((d > 0.2)[:, None], uv, np.nan)
-                cam_path.set_data(uv[:, 0], uv[:, 1])
-            if goals3 is not None:
-                uv, d = cam.project(goals3)
-                uv = uv[d > 0.2]
-                cam_goals.set_data(uv[:, 0], uv[:, 1])
-            if anchors is not None:
-                a = anchors[:, t].reshape(-1, 2)
-                a = a[~np.isnan(a[:, 0])]                                                    # (N, 2) planted
-                top_feet.set_data(a[:, 0], a[:, 1])
-                if layer is None:
-                    uv, d = cam.project(rb.disc_triangles(a, n=16)[:, 1].reshape(-1, 3))     # rim points
-                    cam_discs.set_verts(list(uv.reshape(-1, 16, 2)) if (d > 0.2).all() else [])
-            if layer is None:
-                for s in range(S):
-                    uv, d = cam.project(joints[s, t])
-                    cam_bones[s].set_segments(uv[bone_idx][(d[bone_idx] > 0.2).all(1)])
-            time_text.set_text(f"{t / fps:5.1f} s")
-            fig.canvas.draw()
-            frame = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()                     # (H, W, 3)
-            if layer is not None:
-                layer.draw(frame, cam, *_panel_pixels(ax_cam, frame.shape[0]), t)
+        for frame in _frame_stream(draw, frames_idx, workers):
             writer.append_data(frame)
     finally:
         writer.close()
     return path
+
+
+# Frames go to the workers in blocks of this many (BodyMeshes poses its meshes in chunks of
+# the same size, so no chunk is posed by two processes).
+FRAME_BLOCK = 64
+_DRAW = None     # the frame function of the render in progress, inherited by forked workers
+
+
+def _draw_block(ts) -> list[np.ndarray]:
+    import torch
+
+    torch.set_num_threads(1)       # the body meshes are posed with torch; one thread per worker
+    return [_DRAW(int(t)) for t in ts]
+
+
+def _frame_stream(draw, frames_idx: np.ndarray, workers: int | None):
+    """draw(t) for every t of frames_idx, in order. Matplotlib draws one frame on one core, so
+    frames are drawn by forked worker processes (each inherits the figure) where fork exists."""
+    import multiprocessing as mp
+    import os
+
+    global _DRAW
+    if workers is None:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        workers = min(4, cores)
+    blocks = [frames_idx[i:i + FRAME_BLOCK] for i in range(0, len(frames_idx), FRAME_BLOCK)]
+    if workers < 2 or len(blocks) < 2 or "fork" not in mp.get_all_start_methods():
+        for t in frames_idx:
+            yield draw(int(t))
+        return
+    _DRAW = draw
+    try:
+        with mp.get_context("fork").Pool(min(workers, len(blocks))) as pool:
+            for frames in pool.imap(_draw_block, blocks):
+                yield from frames
+    finally:
+        _DRAW = None
 
 
 def _panel_pixels(ax, height: int):
