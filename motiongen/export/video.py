@@ -10,7 +10,7 @@ feet marked on the floor) or the stick figure (`style="skeleton"`).
 
 Speed: one figure is built once and only artists' data change per frame; the mesh is
 rasterised in numpy and composited onto the drawn frame; blocks of frames are drawn by forked
-worker processes (one per core, up to 4) and stream in order to the encoder. Every
+worker processes on Linux (one per core, up to 4) and stream in order to the encoder. Every
 frame of the motion is rendered unless `video_fps` asks for fewer. Written as mp4 through
 imageio-ffmpeg when it is available, otherwise as a gif.
 """
@@ -360,16 +360,18 @@ def _draw_block(ts) -> list[np.ndarray]:
 
 def _frame_stream(draw, frames_idx: np.ndarray, workers: int | None):
     """draw(t) for every t of frames_idx, in order. Matplotlib draws one frame on one core, so
-    frames are drawn by forked worker processes (each inherits the figure) where fork exists."""
+    on Linux frames are drawn by forked worker processes (each inherits the figure)."""
     import multiprocessing as mp
     import os
+    import sys
 
     global _DRAW
     if workers is None:
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
         workers = min(4, cores)
     blocks = [frames_idx[i:i + FRAME_BLOCK] for i in range(0, len(frames_idx), FRAME_BLOCK)]
-    if workers < 2 or len(blocks) < 2 or "fork" not in mp.get_all_start_methods():
+    # fork only on Linux: macOS offers it, but system frameworks may crash in a forked child.
+    if workers < 2 or len(blocks) < 2 or not sys.platform.startswith("linux"):
         for t in frames_idx:
             yield draw(int(t))
         return
