@@ -171,8 +171,8 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
     transl (T, 3), betas (nβ,) of `body_model`, posing exactly `joints`) as meshes, falling back
     to the skeleton when either is None; "skeleton" draws the stick figure.
     planted (S, T, C) bool: the foot joints `contact_joints` (C,) held on the floor, marked
-    per frame. workers: processes drawing frames (None: up to 4, one per available core; 1:
-    this process only); the frames are the same whichever process draws them. Returns the path
+    per frame. workers: processes drawing frames on Linux (None: up to 4, one per available
+    core; 1: this process only; elsewhere always this process); the frames are the same whichever process draws them. Returns the path
     actually written (the suffix may change to .gif)."""
     import matplotlib
 
