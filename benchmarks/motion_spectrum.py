@@ -5,7 +5,8 @@
                                          [solve.KEY=VALUE ...] [loop.KEY=VALUE ...]
 
 Runs the `evaluate.py` protocol (k = 5, DDIM-10 unless sampler=/steps=/eta= say otherwise,
-seed 0) on a few test scenes of one setting and prints, for the data, the network's own joints and the output motions:
+seed 0) on a few test scenes of one setting and prints, for the data, the network's own joints
+and the output motions:
 - foot skating (evaluate.py's figure) and grounded-toe slide, what a smoother output must keep;
 - PSKL against the data, in nats and in multiples of the data's split-half value;
 - the share of acceleration power in each frequency band (mean over joints and axes), the

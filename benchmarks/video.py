@@ -25,6 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from motiongen.body.model import BodyModel  # noqa: E402
 from motiongen.body.motion import sample_motion  # noqa: E402
 from motiongen.body.procedural import ensure_procedural_model  # noqa: E402
+from motiongen.eval.metrics import TOE_JOINTS  # noqa: E402
 from motiongen.export.video import render_video  # noqa: E402
 
 
@@ -39,9 +40,9 @@ def main() -> None:
         with torch.no_grad():
             joints = bm.joints(*(torch.as_tensor(m[k]) for k in ("global_orient", "body_pose", "transl", "betas")))
         joints = joints.numpy()[None]                                                 # (1, T, 22, 3)
-        toes = joints[0, :, [10, 11], 1]                                              # (2, T) toe heights
+        toes = joints[0, :, list(TOE_JOINTS), 1]                                      # (2, T) toe heights
         planted = (toes < toes.min(1, keepdims=True) + 0.03).T[None]                  # (1, T, 2)
-        kw = dict(bodies=[SimpleNamespace(**m)], body_model=bm, planted=planted, contact_joints=[10, 11])
+        kw = dict(bodies=[SimpleNamespace(**m)], body_model=bm, planted=planted, contact_joints=list(TOE_JOINTS))
         rates, paths = [], []
         for w in (1, args.workers or None):
             path = Path(tmp) / f"w{w}.mp4"

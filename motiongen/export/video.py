@@ -172,8 +172,9 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
     to the skeleton when either is None; "skeleton" draws the stick figure.
     planted (S, T, C) bool: the foot joints `contact_joints` (C,) held on the floor, marked
     per frame. workers: processes drawing frames on Linux (None: up to 4, one per available
-    core; 1: this process only; elsewhere always this process); the frames are the same whichever process draws them. Returns the path
-    actually written (the suffix may change to .gif)."""
+    core; 1: this process only; elsewhere always this process); the frames are the same
+    whichever process draws them. Returns the path actually written (the suffix may change to
+    .gif)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -351,10 +352,13 @@ FRAME_BLOCK = 64
 _DRAW = None     # the frame function of the render in progress, inherited by forked workers
 
 
-def _draw_block(ts) -> list[np.ndarray]:
+def _one_thread() -> None:
     import torch
 
     torch.set_num_threads(1)       # the body meshes are posed with torch; one thread per worker
+
+
+def _draw_block(ts) -> list[np.ndarray]:
     return [_DRAW(int(t)) for t in ts]
 
 
@@ -366,18 +370,18 @@ def _frame_stream(draw, frames_idx: np.ndarray, workers: int | None):
     import sys
 
     global _DRAW
-    if workers is None:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        workers = min(4, cores)
-    blocks = [frames_idx[i:i + FRAME_BLOCK] for i in range(0, len(frames_idx), FRAME_BLOCK)]
     # fork only on Linux: macOS offers it, but system frameworks may crash in a forked child.
-    if workers < 2 or len(blocks) < 2 or not sys.platform.startswith("linux"):
+    linux = sys.platform.startswith("linux")
+    if workers is None:
+        workers = min(4, len(os.sched_getaffinity(0))) if linux else 1
+    blocks = [frames_idx[i:i + FRAME_BLOCK] for i in range(0, len(frames_idx), FRAME_BLOCK)]
+    if workers < 2 or len(blocks) < 2 or not linux:
         for t in frames_idx:
             yield draw(int(t))
         return
     _DRAW = draw
     try:
-        with mp.get_context("fork").Pool(min(workers, len(blocks))) as pool:
+        with mp.get_context("fork").Pool(min(workers, len(blocks)), initializer=_one_thread) as pool:
             for frames in pool.imap(_draw_block, blocks):
                 yield from frames
     finally:
