@@ -178,13 +178,23 @@ def test_video_fps_override_and_bad_style(motion, tmp_path):
 
 
 def test_frames_drawn_by_worker_processes_arrive_in_order(monkeypatch):
+    import multiprocessing as mp
     import os
 
     from motiongen.export import video
 
     monkeypatch.setattr(video, "FRAME_BLOCK", 4)
     idx = np.arange(0, 30, 2)                                                        # 15 frames, 4 blocks
-    out = list(video._frame_stream(lambda t: np.array([t, os.getpid()]), idx, workers=2))
+    # Every block's first frame (t = 0, 8, 16, 24) waits for a second process to arrive: one
+    # worker cannot take all blocks, however fast it draws (it would time out instead).
+    meet = mp.get_context("fork").Barrier(2, timeout=60)
+
+    def draw(t):
+        if t % 8 == 0:
+            meet.wait()
+        return np.array([t, os.getpid()])
+
+    out = list(video._frame_stream(draw, idx, workers=2))
     assert [int(f[0]) for f in out] == idx.tolist()
     assert len({int(f[1]) for f in out}) == 2 and os.getpid() not in {int(f[1]) for f in out}
     one = list(video._frame_stream(lambda t: np.array([t, os.getpid()]), idx, workers=1))
