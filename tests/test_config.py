@@ -21,7 +21,7 @@ def _compose(name="train", overrides=()):
 def test_no_arguments_is_the_demo():
     assert _compose() == _compose(overrides=["experiment=demo"])
     c = _compose()
-    assert c.model.name == "tiny" and c.data.source == "synthetic" and c.train.max_steps == 2500
+    assert c.model.name == "tiny" and c.data.source == "synthetic" and c.train.max_steps == 2000
 
 
 def test_paper_experiment_matches_the_supplement():
