@@ -109,6 +109,32 @@ def test_grounded_slide_drops_with_locking_on_a_walk(bm):
     assert np.isfinite(grounded_slide(locked.joints, 30.0, foot_joints=FOOT_JOINTS, floor_y=X[..., 1].min()))
 
 
+def test_swing_clearance_keeps_swinging_feet_at_the_predicted_height(bm):
+    """A strong joint-acceleration weight (the final solve's at 15 fps) flattens each swing and
+    pulls the swinging foot below its predicted height (4 cm on this gait), which the skating
+    metric reads as a low, fast foot; the clearance term keeps every unplanted foot joint at or
+    above the prediction, within a few millimetres."""
+    from dataclasses import replace
+
+    from motiongen.body.solve import SOLVE_CONFIG
+
+    X, betas = _posed(bm, 90, seed=6, gait=True)
+    X = X - [0, X[..., 1].min(), 0]
+    toe_v = np.linalg.norm(np.gradient(X[:, FOOT_JOINTS, :][..., [0, 2]], axis=0), axis=-1) * 30
+    low = X[:, FOOT_JOINTS, 1] < np.percentile(X[:, FOOT_JOINTS, 1], 40, axis=0)
+    planted = low & (toe_v < np.percentile(toe_v, 50))
+    body = MotionBody(bm, BODY, betas[None])
+    _, R, _ = body.project(X[None])
+
+    def shortfall(w_clearance):
+        cfg = replace(SOLVE_CONFIG, w_smooth_joints=200.0, w_clearance=w_clearance)
+        out = body.solve(0, X, R[0], planted, FOOT_JOINTS, cfg=cfg)
+        return ((X[:, FOOT_JOINTS, 1] - out.joints[:, FOOT_JOINTS, 1]) * ~planted).max()
+
+    assert shortfall(0.0) > 0.02
+    assert shortfall(300.0) < 0.005
+
+
 def test_projection_keeps_ankles_and_wrists_where_predicted(bm):
     """A prediction whose knees and elbows are 3 cm off (so its thighs, shins and arms have the
     wrong lengths): following bone directions down the chain would carry those errors to the

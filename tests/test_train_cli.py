@@ -25,7 +25,7 @@ def dataset(tmp_path_factory):
 
 
 def _args(dataset, run_dir, steps, **over):
-    a = [f"data=dataset", f"data.root={dataset}", f"hydra.run.dir={run_dir}", f"train.max_steps={steps}",
+    a = ["data=dataset", f"data.root={dataset}", f"hydra.run.dir={run_dir}", f"train.max_steps={steps}",
          "train.batch_size=8", "train.num_workers=0", "train.log_every=2", "train.val_every=0",
          "train.figure_every=0", "train.ckpt_every=3", "train.progress=false", "train.threads=1", *TINY]
     a += [f"{k}={v}" for k, v in over.items()]

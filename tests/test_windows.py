@@ -2,7 +2,7 @@ import numpy as np
 import torch
 
 from motiongen.data.format import MotionDataset
-from motiongen.data.windows import NormStats, WindowConfig, WindowDataset, canonicalize, compute_stats
+from motiongen.data.windows import NormStats, WindowConfig, WindowDataset, canonicalize
 from motiongen.geometry import facing_yaw, transform_points
 from tests.helpers import make_dataset
 
@@ -113,7 +113,6 @@ def test_dynamic_object_enters_the_local_grid(tmp_path):
     wd = WindowDataset(ds, "train", WindowConfig(hop=100))
     item = wd[0]
     occ = item["scene"].numpy()                                     # (Hy, Hx, Hz)
-    goal = item["goal"].numpy()
     assert occ.sum() > 0
     ys, xs, zs = np.nonzero(occ)
     cell = 1.2 / 32

@@ -13,6 +13,9 @@ rotations, translations, one β per sequence) with L-BFGS on
                                                  barely observable from joints)
   + w_betas  · ‖β‖² / nβ                         shape prior
   + w_contact · mean over contact spans of ‖J_t − mean_span J‖²  (optional foot locking)
+  + w_clearance · mean over unplanted contact-joint frames of max(0, y_target − y)²
+                                                 (swing clearance: smoothing may not lower a
+                                                 swinging foot)
   + w_foot_vel · Σ max(0, ‖v_foot‖ − a) over feet near the floor or flagged in contact,
                  / ((T−1)·K)                       (seed 002, Eq. 14; `foot_velocity.py`)
 
@@ -58,6 +61,9 @@ class RefineConfig:
     w_reach: float = 0.0            # weight of `reach` targets (a hand on an object)
     w_floor: float = 0.0            # joint centres below floor_y (squared depth, summed over joints)
     floor_y: float = 0.0
+    # Swing clearance: a contact joint that is not flagged planted is not pulled below the
+    # target's height (squared shortfall, mean over swing entries). Needs `contact`.
+    w_clearance: float = 0.0
     # Seed 002's foot velocity term (foot_velocity.py): foot joints faster than foot_vel_a m/s
     # while within foot_z_thres m of floor_y ("height", in the target) or flagged by the
     # contact labels ("contact").
@@ -135,6 +141,11 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
     lock = None
     if contact is not None and cfg.w_contact and bool(contact.any()):
         lock = contact_spans(contact)
+    swing = None
+    if contact is not None and cfg.w_clearance:
+        swing = (~contact.to(torch.bool)).to(target.dtype)                      # (T, C)
+        swing_y = target[:, list(contact_joints), 1]                           # (T, C)
+        n_swing = swing.sum().clamp(min=1)
     foot_mask = None
     if cfg.w_foot_vel:
         check_mask(cfg.foot_vel_mask, contact, T, len(contact_joints))
@@ -162,6 +173,9 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
             loss = loss + cfg.w_foot_vel * foot_velocity_loss(J, foot_mask, contact_joints, fps, cfg.foot_vel_a)
         if cfg.w_floor:
             loss = loss + cfg.w_floor * (cfg.floor_y - J[..., 1]).clamp(min=0).square().sum(-1).mean()
+        if swing is not None:
+            short = (swing_y - J[:, list(contact_joints), 1]).clamp(min=0) * swing
+            loss = loss + cfg.w_clearance * short.square().sum() / n_swing
         if reach is not None and cfg.w_reach:
             f, j, p, w = reach
             loss = loss + cfg.w_reach * (w * (J[f, j] - p).square().sum(-1)).sum() / w.sum().clamp(min=1e-9)

@@ -35,32 +35,29 @@ def blend_seam(window: np.ndarray, k: int, frames: int) -> np.ndarray:
     return out
 
 
-# Frame rate from which a model's frame-level jitter (at 5-7.5 Hz) sits above the body's steps,
-# so the clean-up may smooth it away; below it (10 fps: 3-5 Hz) the jitter shares the legs'
-# swing band and smoothing flattens the swing into skating (docs/quality.md).
+# Frame rate from which a model's frame-level jitter (at 5-7.5 Hz) sits above the body's steps;
+# below it (10 fps: 3-5 Hz) the jitter shares the legs' swing band (docs/quality.md).
 SMOOTHABLE_FPS = 15.0
-
-
-def seam_blend_for_rate(model_fps: float) -> float:
-    """`loop.seam_blend` = None: 0.4 s for a model at SMOOTHABLE_FPS or more, off below. Measured
-    on the 4-scene static check (benchmarks/motion_spectrum.py): the 15 fps demo's PSKL 5.6x ->
-    4.9x with skating 0.082 -> 0.089; the 10 fps quality model gains nothing (5.5x/4.8x ->
-    5.7x/4.4x) and skates more (0.074 -> 0.095): at 10 fps 0.4 s is most of a window's free frames."""
-    return 0.4 if model_fps >= SMOOTHABLE_FPS - 1e-6 else 0.0
+# `loop.seam_blend`'s default, at every model rate. On the 4-scene static check
+# (benchmarks/motion_spectrum.py) the 15 fps demo's PSKL went 5.6x -> 4.9x with it. Before the
+# final solve had swing clearance the 10 fps quality model skated more with it (0.074 -> 0.095),
+# so it was off below 15 fps; with clearance it gains there too (PSKL 3.2x/3.3x -> 2.9x/3.1x at
+# weight 100, skating 0.042 -> 0.050).
+SEAM_BLEND_S = 0.4
 
 
 def solve_smoothness_for_rate(model_fps: float) -> float:
     """`loop.solve_smoothness` = None: the final solve's joint-acceleration weight. At
     SMOOTHABLE_FPS or more a strong weight (200) takes the network's jitter out: on the demo's
     4-scene static check PSKL 8x (weight 5) -> 4.9x (100) -> 4.4x (200) the data's split-half
-    value, foot skating 0.104 -> 0.089 -> 0.087; below it keeps the light 5 of SOLVE_CONFIG (the
-    10 fps quality model skated 0.077 -> 0.177 with 100). The solve runs a fixed 80 L-BFGS steps
-    and is not converged at any of these weights (on an 11 s demo walk its joints sit a mean
-    3.3 cm from a 600-step solve at weight 100, 3.8 cm at 200): it filters the high frequencies
-    first, which is what this weight is for, at a cost that does not grow with it."""
-    from motiongen.body.solve import SOLVE_CONFIG
-
-    return 200.0 if model_fps >= SMOOTHABLE_FPS - 1e-6 else SOLVE_CONFIG.w_smooth_joints
+    value, foot skating 0.104 -> 0.089 -> 0.087. Below it, 100: the 10 fps quality model's PSKL
+    goes 5.5x/4.8x (weight 5, no blend or clearance) -> 2.9x/3.1x (100) -> 2.8x/3.3x (200), and
+    the swing clearance keeps its skating at 0.050 (without it, weight 100 took skating 0.077 ->
+    0.177: smoothing lowered the swinging foot). The solve runs a fixed 80 L-BFGS steps and is
+    not converged at any of these weights (on an 11 s demo walk its joints sit a mean 3.3 cm
+    from a 600-step solve at weight 100, 3.8 cm at 200): it filters the high frequencies first,
+    which is what this weight is for, at a cost that does not grow with it."""
+    return 200.0 if model_fps >= SMOOTHABLE_FPS - 1e-6 else 100.0
 
 
 def output_times(num_model_frames: int, model_fps: float, out_fps: float) -> tuple[np.ndarray, np.ndarray]:
