@@ -369,7 +369,9 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
         from scipy.ndimage import gaussian_filter1d
 
         # Network jitter sits near the model rate's Nyquist frequency (3-5 Hz at 10 fps), where
-        # real motion has little power (docs/sampling.md); steps (1-2 Hz) pass.
+        # real motion has little power (docs/sampling.md); steps (1-2 Hz) pass. On by default
+        # since the final solve's swing clearance holds the swing up: full evaluate.py, PSKL
+        # 4.9x -> 3.6x (demo), 3.35x -> 3.05x (quality), skating no higher (docs/quality.md).
         # The feet keep their own timing: smoothing would flatten each swing into a shuffle
         # (lower, longer, near the floor); the final solve's lock and acceleration terms
         # handle their jitter.

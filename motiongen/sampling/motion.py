@@ -33,8 +33,8 @@ class LoopConfig:
     project: bool = True           # one body: each episode projected onto it, and the final solve
     foot_lock: bool = True         # the final solve holds predicted planted feet in place
     pin_goal: bool = False         # write the goal into the result (the public code); default: the model predicts it
-    smooth: float = 0.0            # Gaussian sigma (output frames) over the motion before the final solve; 0 = off
-    seam_blend: float | None = 0.4  # seconds over which each episode's first free frames take on the pinned frames' velocity; 0 = off; None = 0.4 (assemble.SEAM_BLEND_S)
+    smooth: float = 2.0            # Gaussian sigma (output frames) over the non-foot joints before the final solve; 0 = off
+    seam_blend: float | None = 0.6  # seconds over which each episode's first free frames take on the pinned frames' velocity; 0 = off; None = 0.6 (assemble.SEAM_BLEND_S)
     solve_smoothness: float | None = None  # final solve's joint-acceleration weight; None = by model rate (assemble.solve_smoothness_for_rate)
     # Actions done with a hand on the nearest placed object: the final solve puts the nearer
     # hand on it over the frames so labelled. () leaves hands where the network put them.
