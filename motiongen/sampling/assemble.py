@@ -38,12 +38,6 @@ def blend_seam(window: np.ndarray, k: int, frames: int) -> np.ndarray:
 # Frame rate from which a model's frame-level jitter (at 5-7.5 Hz) sits above the body's steps;
 # below it (10 fps: 3-5 Hz) the jitter shares the legs' swing band (docs/quality.md).
 SMOOTHABLE_FPS = 15.0
-# `loop.seam_blend`'s default, at every model rate. On the 4-scene static check
-# (benchmarks/motion_spectrum.py) the 15 fps demo's PSKL went 5.6x -> 4.9x with 0.4 s. Before the
-# final solve had swing clearance the 10 fps quality model skated more with it (0.074 -> 0.095),
-# so it was off below 15 fps; with clearance it gains there too (PSKL 3.2x/3.3x -> 2.9x/3.1x at
-# weight 100 with 0.4 s, 2.9x/2.9x with 0.6 s; docs/quality.md).
-SEAM_BLEND_S = 0.6
 
 
 def solve_smoothness_for_rate(model_fps: float) -> float:

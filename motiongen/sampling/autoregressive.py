@@ -51,7 +51,7 @@ from motiongen.diffusion.masks import known_mask, replace_mask
 from motiongen.errors import ConfigError
 from motiongen.geometry import canonical_frame, invert_rigid, local_to_world, transform_points
 from motiongen.routing import WalkableMap
-from motiongen.sampling.assemble import SEAM_BLEND_S, blend_seam, solve_smoothness_for_rate
+from motiongen.sampling.assemble import blend_seam, solve_smoothness_for_rate
 from motiongen.sampling.goals import Goal, Route, check_actions, plan_route
 from motiongen.sampling.motion import Episode, LoopConfig, Motion, SamplerSettings
 from motiongen.sampling.interactions import hand_targets, merge_targets, seat_height, seat_shift
@@ -122,7 +122,7 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
     new = L - k                                                                              # new frames per episode
     source_fps = float(loop.source_fps if loop.source_fps is not None else loaded.fps)
     model_fps = source_fps / win.stride
-    blend_s = SEAM_BLEND_S if loop.seam_blend is None else float(loop.seam_blend)
+    blend_s = LoopConfig.seam_blend if loop.seam_blend is None else float(loop.seam_blend)
     predict_goal = loaded.predict_goal and not loop.pin_goal
     body = None                            # MotionBody, fitted to the first window
     if loop.project and body_model is None:

@@ -34,7 +34,11 @@ class LoopConfig:
     foot_lock: bool = True         # the final solve holds predicted planted feet in place
     pin_goal: bool = False         # write the goal into the result (the public code); default: the model predicts it
     smooth: float = 2.0            # Gaussian sigma (output frames) over the non-foot joints before the final solve; 0 = off
-    seam_blend: float | None = 0.6  # seconds over which each episode's first free frames take on the pinned frames' velocity; 0 = off; None = 0.6 (assemble.SEAM_BLEND_S)
+    # Seconds over which each episode's first free frames take on the pinned frames' velocity
+    # (assemble.blend_seam); 0 = off; None = this default. At every model rate: with the final
+    # solve's swing clearance the 10 fps quality model gains too (4-scene check PSKL 3.2x/3.3x ->
+    # 2.9x/3.1x with 0.4 s, 2.9x/2.9x with 0.6 s; without clearance it skated more: docs/quality.md).
+    seam_blend: float | None = 0.6
     solve_smoothness: float | None = None  # final solve's joint-acceleration weight; None = by model rate (assemble.solve_smoothness_for_rate)
     # Actions done with a hand on the nearest placed object: the final solve puts the nearer
     # hand on it over the frames so labelled. () leaves hands where the network put them.
