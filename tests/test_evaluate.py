@@ -135,6 +135,15 @@ def test_evaluate_end_to_end(ckpt, tmp_path):
     rep2 = json.loads((out2 / "report.json").read_text())
     assert rep2["settings"]["static"]["model"] == {**rep["settings"]["static"]["model"],
                                                    "seconds_per_pair": rep2["settings"]["static"]["model"]["seconds_per_pair"]}
+    # loop.* keys reach the sampler: without the body the output is the network's own joints
+    out3 = tmp_path / "ev3"
+    r = _run("evaluate.py", [f"ckpt={ckpt}", f"out={out3}", "plots=false", "settings=[static]", "loop.project=false",
+                             "loop.smooth=0", *EVAL])
+    assert r.returncode == 0, r.stderr[-3000:]
+    rep3 = json.loads((out3 / "report.json").read_text())
+    assert rep3["meta"]["protocol"]["loop"] == {"project": False, "smooth": 0.0}
+    assert rep3["settings"]["static"]["model"]["bone_max_dev"] > 1e-3    # 0 with the body (above)
+    assert "`loop.project=False`, `loop.smooth=0.0`" in (out3 / "report.md").read_text()
 
 
 @pytest.mark.parametrize("args, needle", [
@@ -143,6 +152,8 @@ def test_evaluate_end_to_end(ckpt, tmp_path):
     (["scenes=[1234]"], "not among the test scenes"),
     (["settings=[bogus]"], "settings"),
     (["data=dataset", "data.root=NOTEST"], "no test scenes"),
+    (["loop.smooth=-1"], "loop.smooth: expected a number >= 0"),
+    (["loop.foot_lock=maybe"], "loop.foot_lock: expected true or false"),
 ])
 def test_evaluate_user_errors(ckpt, tmp_path, args, needle):
     if "data.root=NOTEST" in args:

@@ -7,7 +7,7 @@ id, setting): evaluating a subset of scenes gives the same pairs for those scene
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -35,6 +35,7 @@ class ProtocolConfig:
     seed: int = 0
     pskl_frames: int = 60               # PSKL chunk length (frames at 30 fps = 2 s)
     contact_thresh: float = 0.02
+    loop: dict = field(default_factory=dict)   # LoopConfig fields set for every pair (the sampler's clean-up)
 
 
 @dataclass

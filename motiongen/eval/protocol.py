@@ -68,7 +68,8 @@ def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler
         warnings.simplefilter("ignore")
         motion = generate(loaded, ctx.grid, pair.start, route=pair.route, walkable=ctx.fmap, objects=objs,
                           sampler=sampler, num_samples=cfg.k, generator=gen, body_model=body_model,
-                          loop=LoopConfig(max_episodes=cfg.max_episodes, out_fps=ctx.ds.fps, source_fps=ctx.ds.fps))
+                          loop=LoopConfig(max_episodes=cfg.max_episodes, out_fps=ctx.ds.fps, source_fps=ctx.ds.fps,
+                                          **cfg.loop))
     wall = time.perf_counter() - t0
     names = list(motion.joint_names)
     A = len(motion.action_names)

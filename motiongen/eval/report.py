@@ -103,6 +103,10 @@ def markdown(report: dict) -> str:
              "Arrows: ↓ lower is better, ↑ higher is better, ≈ref closer to the reference row is better. "
              "The reference row is the dataset's own motion in the same scenes; n/a where a metric does "
              "not apply to it (docs/evaluation.md).", ""]
+    loop = (m.get("protocol") or {}).get("loop")
+    if loop:
+        lines += ["Sampler clean-up set for this run (the rest at the sampler's defaults): "
+                  + ", ".join(f"`loop.{k}={v}`" for k, v in loop.items()) + ".", ""]
     if m.get("goal_pinned"):
         lines += ["This checkpoint pins the goal's pelvis x, z (trained before goals were predicted): "
                   "goal dist (pelvis) is n/a, the hips are the body's own.", ""]
@@ -170,6 +174,30 @@ def _dataset_config(cfg, ckpt_config):
     return DataConfig(**{k: v for k, v in d.items() if k in fields})
 
 
+# evaluate.py's loop keys: the sampler's clean-up switches and their types.
+LOOP_KEYS = {"project": bool, "foot_lock": bool, "pin_goal": bool, "smooth": float, "seam_blend": float,
+             "solve_smoothness": float}
+
+
+def loop_overrides(lc) -> dict:
+    """LoopConfig fields the user set (non-null `loop.*` keys), checked and typed."""
+    from omegaconf import OmegaConf
+
+    out = {}
+    for key, value in (OmegaConf.to_container(lc) if lc is not None else {}).items():
+        if value is None:
+            continue
+        kind = LOOP_KEYS.get(key)
+        if kind is None:
+            raise ConfigError(f"loop.{key}: not a clean-up key evaluate.py takes ({', '.join(LOOP_KEYS)})")
+        if kind is bool and not isinstance(value, bool) or kind is float and (
+                isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0):
+            want = "true or false" if kind is bool else "a number >= 0"
+            raise ConfigError(f"loop.{key}: expected {want}, got {value!r}")
+        out[key] = kind(value)
+    return out
+
+
 def run(cfg, default_out: Path) -> dict:
     """The whole `evaluate.py` run for a resolved config. Returns the report dict."""
     import torch
@@ -235,7 +263,7 @@ def run(cfg, default_out: Path) -> dict:
                         dynamic_action=str(cfg.dynamic_action), action_seconds=None if cfg.get("action_seconds") is None else float(cfg.action_seconds),
                         min_distance=float(cfg.min_distance), body_radius=float(cfg.body_radius),
                         subgoal_spacing=float(cfg.subgoal_spacing), max_episodes=int(cfg.max_episodes),
-                        seed=int(cfg.seed), pskl_frames=int(cfg.pskl_frames))
+                        seed=int(cfg.seed), pskl_frames=int(cfg.pskl_frames), loop=loop_overrides(cfg.get("loop")))
     progress = bool(cfg.get("progress", True))
     from motiongen.body.model import load_body_model
 
@@ -297,4 +325,4 @@ def run(cfg, default_out: Path) -> dict:
     return report
 
 
-__all__ = ["METRICS", "build_report", "markdown", "log_tensorboard", "run"]
+__all__ = ["METRICS", "build_report", "markdown", "log_tensorboard", "loop_overrides", "run"]
