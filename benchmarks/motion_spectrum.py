@@ -15,9 +15,10 @@ and the output motions:
 - the floor set by the model's frame rate: the data taken to 10, 15 and 30 fps and resampled
   back the way generated motion is (motiongen.sampling.assemble.resample), scored against itself.
 `solve.KEY=VALUE` overrides a field of the final body solve (motiongen.body.solve.SOLVE_CONFIG)
-for this run, e.g. solve.w_contact=300; `loop.KEY=VALUE` one of the sampling loop's
-(motiongen.sampling.LoopConfig), e.g. loop.seam_blend=0 or loop.solve_smoothness=200 (the
-solve's joint-acceleration weight, which the loop sets by the model's frame rate).
+for this run, e.g. solve.w_contact=300; `loop.KEY=VALUE` one of the sampler's clean-up
+keys, as evaluate.py takes them (loop.project, foot_lock, pin_goal, smooth, seam_blend,
+solve_smoothness), e.g. loop.seam_blend=0 or loop.solve_smoothness=200 (the solve's
+joint-acceleration weight, which the loop sets by the model's frame rate).
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ def main(argv) -> None:
     from motiongen.data.sources import open_dataset
     from motiongen.eval.pairs import ProtocolConfig
     from motiongen.eval.protocol import evaluate, pskl_sets
-    from motiongen.eval.report import _dataset_config
+    from motiongen.eval.report import _dataset_config, loop_overrides
     from motiongen.sampling import SamplerSettings
     from motiongen.sampling.assemble import resample
     from motiongen.training.builders import load_model
@@ -76,17 +77,12 @@ def main(argv) -> None:
     over = {k[6:]: type(getattr(solve.SOLVE_CONFIG, k[6:]))(float(v)) for k, v in a.items() if k.startswith("solve.")}
     if over:
         solve.SOLVE_CONFIG = dataclasses.replace(solve.SOLVE_CONFIG, **over)
-    loop_over = {k[5:]: float(v) for k, v in a.items() if k.startswith("loop.")}
-    if loop_over:
-        import functools
-
-        import motiongen.sampling as sampling
-        # evaluate() builds its LoopConfig from motiongen.sampling at call time
-        sampling.LoopConfig = functools.partial(sampling.LoopConfig, **loop_over)
+    # the same keys and checks as evaluate.py's loop group
+    loop_over = loop_overrides(OmegaConf.from_dotlist([f"{k[5:]}={v}" for k, v in a.items() if k.startswith("loop.")]))
     loaded = load_model(a["ckpt"], "cpu")
     ds = open_dataset(_dataset_config(OmegaConf.create({}), loaded.config), verbose=False)
     setting, scenes = a["setting"], [int(s) for s in a["scenes"].split(",")]
-    pc = ProtocolConfig(k=5, pairs=int(a["pairs"]))
+    pc = ProtocolConfig(k=5, pairs=int(a["pairs"]), loop=loop_over)
     t0 = time.perf_counter()
     sampler = SamplerSettings(a["sampler"], int(a["steps"]), float(a["eta"]), 1.0)
     ev = evaluate(loaded, ds, scenes, pc, settings=[setting], sampler=sampler, progress=False)
