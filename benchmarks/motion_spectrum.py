@@ -1,7 +1,7 @@
 """Where PSKL comes from: acceleration power per frequency band, data vs generated (not a timed test).
 
     python benchmarks/motion_spectrum.py ckpt=PATH [scenes=91,95,97,100] [setting=static] [pairs=3]
-                                         [sampler=ddim] [steps=10] [eta=0]
+                                         [sampler=ddim] [steps=10] [eta=0] [precision=auto|fp32|bf16]
                                          [solve.KEY=VALUE ...] [loop.KEY=VALUE ...]
 
 Runs the `evaluate.py` protocol (k = 5, DDIM-10 unless sampler=/steps=/eta= say otherwise,
@@ -35,7 +35,7 @@ BANDS = [(0, 2), (2, 3), (3, 5), (5, 8), (8, 15.01)]
 
 def _args(argv):
     out = {"ckpt": None, "scenes": "91,95,97,100", "setting": "static", "pairs": "3",
-           "sampler": "ddim", "steps": "10", "eta": "0"}
+           "sampler": "ddim", "steps": "10", "eta": "0", "precision": "auto"}
     for a in argv:
         k, _, v = a.partition("=")
         out[k] = v
@@ -79,7 +79,7 @@ def main(argv) -> None:
         solve.SOLVE_CONFIG = dataclasses.replace(solve.SOLVE_CONFIG, **over)
     # the same keys and checks as evaluate.py's loop group
     loop_over = loop_overrides(OmegaConf.from_dotlist([f"{k[5:]}={v}" for k, v in a.items() if k.startswith("loop.")]))
-    loaded = load_model(a["ckpt"], "cpu")
+    loaded = load_model(a["ckpt"], "cpu", precision=a["precision"])
     ds = open_dataset(_dataset_config(OmegaConf.create({}), loaded.config), verbose=False)
     setting, scenes = a["setting"], [int(s) for s in a["scenes"].split(",")]
     pc = ProtocolConfig(k=5, pairs=int(a["pairs"]), loop=loop_over)
@@ -96,7 +96,7 @@ def main(argv) -> None:
         rows[f"data at {30 // stride} fps, resampled"] = [resample(m[::stride][None], fps / stride, fps)[0] for m in refs]
     print(f"{a['ckpt']}: setting {setting}, scenes {scenes}, {pc.pairs} pairs x {pc.k} samples, "
           f"{time.perf_counter() - t0:.0f} s; data split-half PSKL {floor:.3f} nats"
-          + f"; {a['sampler']}-{a['steps']} eta {a['eta']}" + (f"; solve {over}" if over else "")
+          + f"; {a['sampler']}-{a['steps']} eta {a['eta']} {a['precision']}" + (f"; solve {over}" if over else "")
           + (f"; loop {loop_over}" if loop_over else ""))
     head = "".join(f"{lo:g}-{min(hi, 15):g} Hz".rjust(10) for lo, hi in BANDS)
     from motiongen.eval.metrics import foot_skating_ratio, grounded_slide

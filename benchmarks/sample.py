@@ -2,6 +2,7 @@
 
     python benchmarks/sample.py [ckpt=PATH] [threads=2] [preset=paper] [episodes=6] [project=true]
                                 [stride=3] [length=16] [samplers=ddpm-100,ddim-50,ddim-25,ddim-10] [batches=1,8]
+                                [precisions=fp32,bf16]
 
 Speed: the `paper` preset with random-init weights (speed does not depend on training) on the
 CPU, DDPM-100 vs DDIM-50/25/10, batch 1 and 8: real-time factor = seconds of motion produced
@@ -10,6 +11,9 @@ includes everything `sample.py` does to a motion: the per-episode projection ont
 the final body solve (foot lock); `project=false` measures the network alone. `stride=2
 length=24` gives the model 15 fps windows of the same 1.6 s (the demo's and quality recipe's
 rate), which also sets the rate-dependent clean-up (seam blend, the solve's smoothness weight).
+Each setting runs once per precision (`precision=` of sample.py: bf16 holds the denoiser's
+transformer layers in bfloat16), one after the other in this run, so their ratio is measured
+on the host of the moment.
 Quality: with `ckpt=` (a trained checkpoint, e.g. the demo), the goal-reaching error at the
 same step counts on a fixed goal route: pelvis and hips-midpoint error on arrival (both the
 body's own: goals are predicted, not pinned), plus how many goals were reached.
@@ -17,6 +21,7 @@ body's own: goals are predicted, not pinned), plus how many goals were reached.
 
 from __future__ import annotations
 
+import copy
 import sys
 import time
 import types
@@ -31,7 +36,8 @@ SETTINGS = [("ddpm", 100), ("ddim", 50), ("ddim", 25), ("ddim", 10)]
 
 def _args(argv):
     out = {"ckpt": None, "threads": "2", "preset": "paper", "episodes": "6", "project": "true",
-           "stride": "3", "length": "16", "samplers": ",".join(f"{s}-{n}" for s, n in SETTINGS), "batches": "1,8"}
+           "stride": "3", "length": "16", "samplers": ",".join(f"{s}-{n}" for s, n in SETTINGS), "batches": "1,8",
+           "precisions": "fp32,bf16"}
     for a in argv:
         k, _, v = a.partition("=")
         out[k] = v
@@ -90,25 +96,37 @@ def main(argv):
         warnings.simplefilter("ignore")
         generate(loaded, None, (0, 0), [Goal([0, 100.0])], path="straight", sampler=SamplerSettings("ddim", 2),
                  loop=LoopConfig(warmup=1, max_episodes=1, project=project))
-    print(f"{'sampler':>10} {'batch':>5} {'motion s':>9} {'wall s':>7} {'RTF':>6}")
+    from motiongen.training.builders import PRECISIONS, resolve_precision
+
+    models = {}
+    for prec in filter(None, a["precisions"].split(",")):
+        if prec not in PRECISIONS:
+            sys.exit(f"precisions: expected some of {', '.join(PRECISIONS)}, got {prec!r}")
+        models[prec] = copy.deepcopy(loaded.model).blocks_to(PRECISIONS[prec])
+    # what precision=auto (sample.py's default) picks for this preset
+    auto = resolve_precision(loaded.model, "auto")
+    print(f"precision=auto (the default) uses {auto} for this model")
+    print(f"{'sampler':>10} {'batch':>5} {'precision':>9} {'motion s':>9} {'wall s':>7} {'RTF':>6}")
     for sampler, steps in _samplers(a["samplers"]):
         for batch in map(int, filter(None, a["batches"].split(","))):
-            loop = LoopConfig(warmup=1, max_episodes=episodes - 1, project=project)
-            t = time.perf_counter()
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                m = generate(loaded, None, (0, 0), [Goal([0, 100.0])], path="straight", num_samples=batch,
-                             sampler=SamplerSettings(sampler, steps), generator=torch.Generator().manual_seed(0),
-                             loop=loop)
-            wall = time.perf_counter() - t
-            print(f"{sampler + '-' + str(steps):>10} {batch:>5} {batch * m.duration:9.1f} {wall:7.2f} "
-                  f"{batch * m.duration / wall:6.2f}", flush=True)
+            for prec, model in models.items():
+                loaded.model = model
+                loop = LoopConfig(warmup=1, max_episodes=episodes - 1, project=project)
+                t = time.perf_counter()
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    m = generate(loaded, None, (0, 0), [Goal([0, 100.0])], path="straight", num_samples=batch,
+                                 sampler=SamplerSettings(sampler, steps), generator=torch.Generator().manual_seed(0),
+                                 loop=loop)
+                wall = time.perf_counter() - t
+                print(f"{sampler + '-' + str(steps):>10} {batch:>5} {prec:>9} {batch * m.duration:9.1f} {wall:7.2f} "
+                      f"{batch * m.duration / wall:6.2f}", flush=True)
     if not a["ckpt"]:
         print("quality: pass ckpt=PATH (a trained checkpoint) for goal-reaching errors")
         return
     from motiongen.training.builders import load_model
 
-    ld = load_model(a["ckpt"])
+    ld = load_model(a["ckpt"], precision="auto")
     goals = [Goal([1.5, 2.0]), Goal([-1.0, 4.0]), Goal([0.5, 6.0])]
     print(f"quality: {a['ckpt']} (step {ld.step}), 3 goals over ~7 m in an empty scene, 4 samples")
     print(f"{'sampler':>10} {'reached':>8} {'pelvis m':>9} {'hips m':>7} {'RTF':>6}")

@@ -204,3 +204,34 @@ def test_tiny_overfits_one_batch(one_thread):
             break
     assert losses[-1] < losses[0] / 10, (losses[0], losses[-1])
     assert time.perf_counter() - start < 30
+
+
+def test_bf16_layers_keep_the_output_within_a_few_percent(one_thread):
+    """precision=bf16 (sampling): the transformer layers hold bfloat16 weights, the ends stay
+    float32, and the prediction moves by bfloat16's rounding, not more."""
+    import copy
+
+    m = _tiny()
+    cond, g = _cond(4), torch.Generator().manual_seed(1)
+    x, t = torch.randn(4, L, m.channels, generator=g), torch.tensor([10, 200, 500, 900])
+    with torch.inference_mode():
+        ref = m(x, t, cond)
+        half = copy.deepcopy(m).blocks_to(torch.bfloat16)
+        out = half(x, t, cond)
+    assert {p.dtype for p in half.blocks.parameters()} == {torch.bfloat16}
+    assert half.output.weight.dtype == torch.float32 and out.dtype == torch.float32
+    err = float((out - ref).norm() / ref.norm())
+    assert 1e-4 < err < 0.03, err
+    with pytest.raises(RuntimeError, match="for sampling"):
+        _tiny().train().blocks_to(torch.bfloat16)
+
+
+def test_precision_auto_is_bf16_for_paper_size_layers_only():
+    from motiongen.errors import ConfigError
+    from motiongen.training.builders import resolve_precision
+
+    paper = build_model(model_config("paper"), J, A, L)
+    assert resolve_precision(_tiny(), "auto") == "fp32" and resolve_precision(paper, "auto") == "bf16"
+    assert resolve_precision(paper, "fp32") == "fp32" and resolve_precision(_tiny(), "bf16") == "bf16"
+    with pytest.raises(ConfigError, match="precision: expected one of fp32, bf16, auto"):
+        resolve_precision(paper, "fp16")

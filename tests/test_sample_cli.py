@@ -97,6 +97,7 @@ BAD = {
     "missing_ckpt": (["goals=[[1.5,-1.0]]", "ckpt={dir}/none.pt"], "checkpoint file does not exist"),
     "missing_scene": (["goals=[[1.5,-1.0]]", "scene={dir}/nothing.obj"], "scene mesh file or folder is missing"),
     "bad_goals_file": (["goals_file={dir}/bad.json"], "goals[0]"),
+    "bad_precision": (["goals=[[1.5,-1.0]]", "precision=fp16"], "precision: expected one of fp32, bf16, auto"),
 }
 
 

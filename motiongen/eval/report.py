@@ -231,7 +231,7 @@ def run(cfg, default_out: Path) -> dict:
     device = str(cfg.device)
     from motiongen.training.builders import load_model
 
-    loaded = load_model(ckpt, device)
+    loaded = load_model(ckpt, device, precision=str(cfg.get("precision") or "auto"))
 
     from motiongen.data.sources import open_dataset
 
@@ -274,7 +274,7 @@ def run(cfg, default_out: Path) -> dict:
             "pairs": npairs, "sampler": sampler.sampler, "steps": sampler.steps, "eta": sampler.eta,
             "guidance_scale": sampler.guidance_scale, "seed": int(cfg.seed), "settings": settings,
             "protocol": {k_: (list(v) if isinstance(v, tuple) else v) for k_, v in pc.__dict__.items()},
-            "device": device, "torch_threads": torch.get_num_threads(), "goal_pinned": not loaded.predict_goal}
+            "device": device, "precision": loaded.precision, "torch_threads": torch.get_num_threads(), "goal_pinned": not loaded.predict_goal}
     if cfg.get("mocap"):
         from motiongen.eval.mocap import mocap_body_metrics
 

@@ -110,6 +110,19 @@ class Denoiser(nn.Module):
             self.action_null_frames = (nn.Parameter(torch.randn(W) * 0.02)
                                        if cfg.action_per_frame else None)
 
+    _blocks_dtype: torch.dtype | None = None
+
+    def blocks_to(self, dtype: torch.dtype) -> "Denoiser":
+        """Hold the transformer layers (nearly all of the per-step compute) in `dtype`, e.g.
+        torch.bfloat16 for sampling: half the weight bytes each denoising step reads. The input
+        and output projections, the timestep MLP and the encoders stay as they are. Sampling
+        only: the optimiser's updates would be lost in bfloat16 weights."""
+        if self.training and dtype != torch.float32:
+            raise RuntimeError("blocks_to: reduced-precision layers are for sampling (call model.eval() first)")
+        self.blocks.to(dtype)
+        self._blocks_dtype = dtype
+        return self
+
     # -- conditioning -------------------------------------------------------------------
     def encode_condition(self, cond: Condition | None) -> EncodedCondition:
         """Run the scene/action encoders once; the result can be passed to ``forward``."""
@@ -181,7 +194,9 @@ class Denoiser(nn.Module):
             h = h + enc.per_frame[:, :L]
         tok0 = self.t_embed(t) + enc.token0  # (B, W); token0 may be (1, W) and broadcast
         h = torch.cat([tok0[:, None], h], 1) + self.pos[: L + 1]  # (B, L+1, W)
-        h = self.blocks(self.drop(h))
+        # the layers may hold bfloat16 weights for sampling (blocks_to); the ends stay float32
+        h = self.drop(h)
+        h = self.blocks(h if self._blocks_dtype is None else h.to(self._blocks_dtype)).to(x_t.dtype)
         out = self.output(h[:, 1:])  # (B, L, D); token 0's output is dropped
         if self.cfg.temporal_basis and self.cfg.temporal_basis < self.window:
             # same cut-off frequency for a shorter window: round(K L / window) vectors

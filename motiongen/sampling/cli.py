@@ -63,7 +63,7 @@ def run(cfg, default_out: Path) -> dict:
     from motiongen.training.builders import load_model
 
     device = str(cfg.device)
-    loaded = load_model(ckpt, device)
+    loaded = load_model(ckpt, device, precision=str(cfg.get("precision") or "auto"))
     scene = resolve_scene(cfg.get("scene"), loaded.config, float(cfg.voxel_size), str(cfg.scene_up),
                           _bool(cfg, "objects", True))
     fmap = None
@@ -100,7 +100,7 @@ def run(cfg, default_out: Path) -> dict:
         if lc else LoopConfig()
     gen = torch.Generator(device=loaded.device if loaded.device.type != "mps" else "cpu").manual_seed(int(cfg.seed))
     yaw = cfg.get("start_yaw")
-    print(f"sampling: {ckpt} (step {loaded.step}) in {scene.label}, {len(goals)} goal(s), "
+    print(f"sampling: {ckpt} (step {loaded.step}, {loaded.precision} layers) in {scene.label}, {len(goals)} goal(s), "
           f"{len(route.subgoals)} subgoals, {cfg.num_samples} sample(s)", flush=True)
     from motiongen.body.model import load_body_model
 
@@ -115,7 +115,8 @@ def run(cfg, default_out: Path) -> dict:
     written = []
     try:
         extra = {"ckpt": str(ckpt), "scene": scene.label, "sampler": sampler.sampler, "steps": sampler.steps,
-                 "eta": sampler.eta, "guidance_scale": sampler.guidance_scale, "seed": int(cfg.seed)}
+                 "eta": sampler.eta, "guidance_scale": sampler.guidance_scale, "seed": int(cfg.seed),
+                 "precision": loaded.precision}
         tmp = stage.tmp("motion.npz")
         np.savez(tmp, **motion_arrays(motion, extra))
         stage.add(tmp, "motion.npz")
@@ -167,7 +168,8 @@ def run(cfg, default_out: Path) -> dict:
                    "arrival_error_body_m": np.where(np.isfinite(motion.arrival_error_body),
                                                     motion.arrival_error_body, -1).tolist(),
                    "generation_s": motion.wall_time, "real_time_factor": motion.real_time_factor,
-                   "total_s": time.perf_counter() - t0, "sampler": sampler.__dict__}
+                   "total_s": time.perf_counter() - t0, "sampler": sampler.__dict__,
+                   "precision": loaded.precision}
         tmp = stage.tmp("summary.json")
         tmp.write_text(json.dumps(summary, indent=2))
         stage.add(tmp, "summary.json")
