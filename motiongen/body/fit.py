@@ -144,7 +144,8 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
     swing = None
     if contact is not None and cfg.w_clearance:
         swing = (~contact.to(torch.bool)).to(target.dtype)                      # (T, C)
-        swing_y = target[:, list(contact_joints), 1]                           # (T, C)
+        swing_j = torch.as_tensor(list(contact_joints), device=target.device)  # (C,) once, not per loss call
+        swing_y = target[:, swing_j, 1]                                        # (T, C)
         n_swing = swing.sum().clamp(min=1)
     foot_mask = None
     if cfg.w_foot_vel:
@@ -174,7 +175,7 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
         if cfg.w_floor:
             loss = loss + cfg.w_floor * (cfg.floor_y - J[..., 1]).clamp(min=0).square().sum(-1).mean()
         if swing is not None:
-            short = (swing_y - J[:, list(contact_joints), 1]).clamp(min=0) * swing
+            short = (swing_y - J[:, swing_j, 1]).clamp(min=0) * swing
             loss = loss + cfg.w_clearance * short.square().sum() / n_swing
         if reach is not None and cfg.w_reach:
             f, j, p, w = reach
