@@ -52,10 +52,10 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     from motiongen.body.fit import fit_joints
     from motiongen.body.model import load_body_model
-    from motiongen.data.annotate_contact import SurfaceBank, annotate_frames
-    from motiongen.data.contact import BodySurface, ContactConfig
-    from motiongen.data.distance_field import GridField, MeshField
-    from motiongen.data.sources import DataConfig, open_dataset
+    from motiongen.annotation.annotate_contact import SurfaceBank, annotate_frames
+    from motiongen.annotation.vertex_contact import BodySurface, ContactConfig
+    from motiongen.scene.distance_field import GridField, MeshField
+    from motiongen.importers.sources import DataConfig, open_dataset
 
     ds = open_dataset(DataConfig(source="synthetic", size="small"))
     bm = load_body_model()
@@ -133,7 +133,7 @@ def main() -> None:
         import shutil
         import tempfile
 
-        from motiongen.data.annotate_contact import annotate_dataset
+        from motiongen.annotation.annotate_contact import annotate_dataset
 
         with tempfile.TemporaryDirectory() as tmp:
             root = Path(tmp) / "ds"

@@ -52,7 +52,7 @@ def double_of(ds):
 
     from motiongen.data.format import MotionDataset
     from motiongen.data.dataset_writer import DatasetWriter
-    from motiongen.data.occupancy import OccupancyGrid
+    from motiongen.scene.occupancy import OccupancyGrid
 
     root = ds.root.with_name(ds.root.name + "-x2")
     if (root / "meta.json").is_file():
@@ -82,7 +82,7 @@ def main() -> None:
     if a.measure:
         print(json.dumps(measure(a.measure, a.windows, a.workers)))
         return
-    from motiongen.data.sources import DataConfig, open_dataset
+    from motiongen.importers.sources import DataConfig, open_dataset
     results = {}
     default = open_dataset(DataConfig(source="synthetic", size="default"))
     datasets = {"default": default, "double": double_of(default)}

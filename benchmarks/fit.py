@@ -21,7 +21,7 @@ import torch
 
 from motiongen.body.fit import default_mlp, fit_joints
 from motiongen.body.model import load_body_model
-from motiongen.body.motion import sample_motion
+from motiongen.body.random_motion import sample_motion
 from motiongen.body.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 

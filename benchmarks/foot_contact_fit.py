@@ -4,7 +4,7 @@
         [--steps 30] [--foot-vel-steps 100] [--mlp none|auto|PATH]
 
 1. The CMU / Biovision BVH clips of Debian's assimp-testmodels are imported as the BVH importer
-   does (`motiongen.data.import_bvh`: 22 joints, y-up, 30 fps, floor at y = 0, foot contact
+   does (`motiongen.importers.bvh`: 22 joints, y-up, 30 fps, floor at y = 0, foot contact
    labels from height and speed).
 2. Each clip is fitted joints -> SMPL-X (`fit_joints`, the body model of `load_body_model()`):
    without the term (one pass, as the CLI does; and two passes, as many iterations as the runs
@@ -13,7 +13,7 @@
    seed's heuristic) or over the importer's contact labels ("contact": where sensor or
    annotated labels would go).
 3. Per fit: MPJPE to the mocap joints, the foot skating ratio and grounded slide of the toes
-   (`motiongen.eval.metrics`, as evaluate.py reports them), and the median speed of the foot
+   (`motiongen.metrics`, as evaluate.py reports them), and the median speed of the foot
    joints over the labelled contact frames (what the term holds still).
 """
 
@@ -32,8 +32,8 @@ from motiongen.body.fit import RefineConfig, fit_joints, refine
 from motiongen.body.model import load_body_model
 from motiongen.body.rotations import axis_angle_to_matrix
 from motiongen.data.format import MotionDataset
-from motiongen.data.import_bvh import parse_args, run
-from motiongen.eval.metrics import foot_skating_ratio, grounded_slide
+from motiongen.importers.bvh import parse_args, run
+from motiongen.metrics import foot_skating_ratio, grounded_slide
 from motiongen.skeleton import FOOT_JOINTS
 
 

@@ -10,7 +10,7 @@ and the output motions:
 - foot skating (evaluate.py's figure) and grounded-toe slide, what a smoother output must keep;
 - PSKL against the data, in nats and in multiples of the data's split-half value;
 - the share of acceleration power in each frequency band (mean over joints and axes), the
-  normalised spectra PSKL compares (motiongen.eval.metrics.pskl, 2 s chunks at 30 fps), and
+  normalised spectra PSKL compares (motiongen.metrics.pskl, 2 s chunks at 30 fps), and
   the rms acceleration in each band, which says whether a share is off by excess or deficit;
 - the floor set by the model's frame rate: the data taken to 10, 15 and 30 fps and resampled
   back the way generated motion is (motiongen.sampling.assemble.resample), scored against itself.
@@ -65,13 +65,13 @@ def main(argv) -> None:
     import motiongen.body.solve as solve
     from omegaconf import OmegaConf
 
-    from motiongen.data.sources import open_dataset
+    from motiongen.importers.sources import open_dataset
     from motiongen.eval.pairs import ProtocolConfig
     from motiongen.eval.protocol import evaluate, pskl_sets
     from motiongen.eval.report import _dataset_config, loop_overrides
     from motiongen.sampling import SamplerSettings
     from motiongen.sampling.assemble import resample
-    from motiongen.training.builders import load_model
+    from motiongen.loading.build import load_model
 
     # each value in its field's type (max_steps is an int)
     over = {k[6:]: type(getattr(solve.SOLVE_CONFIG, k[6:]))(float(v)) for k, v in a.items() if k.startswith("solve.")}
@@ -99,7 +99,7 @@ def main(argv) -> None:
           + f"; {a['sampler']}-{a['steps']} eta {a['eta']} {a['precision']}" + (f"; solve {over}" if over else "")
           + (f"; loop {loop_over}" if loop_over else ""))
     head = "".join(f"{lo:g}-{min(hi, 15):g} Hz".rjust(10) for lo, hi in BANDS)
-    from motiongen.eval.metrics import foot_skating_ratio, grounded_slide
+    from motiongen.metrics import foot_skating_ratio, grounded_slide
     print(f"{'':30s}{'skating':>8s}{'slide':>7s}  (mean over motions; slide m/s, median over grounded toes)")
     for name in ("data", "network joints", "output"):
         ms = rows[name]

@@ -96,7 +96,7 @@ def main(argv):
         warnings.simplefilter("ignore")
         generate(loaded, None, (0, 0), [Goal([0, 100.0])], path="straight", sampler=SamplerSettings("ddim", 2),
                  loop=LoopConfig(warmup=1, max_episodes=1, project=project))
-    from motiongen.training.builders import PRECISIONS, resolve_precision
+    from motiongen.loading.build import PRECISIONS, resolve_precision
 
     models = {}
     for prec in filter(None, a["precisions"].split(",")):
@@ -124,7 +124,7 @@ def main(argv):
     if not a["ckpt"]:
         print("quality: pass ckpt=PATH (a trained checkpoint) for goal-reaching errors")
         return
-    from motiongen.training.builders import load_model
+    from motiongen.loading.build import load_model
 
     ld = load_model(a["ckpt"], precision="auto")
     goals = [Goal([1.5, 2.0]), Goal([-1.0, 4.0]), Goal([0.5, 6.0])]

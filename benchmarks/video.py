@@ -23,9 +23,9 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from motiongen.body.model import BodyModel  # noqa: E402
-from motiongen.body.motion import sample_motion  # noqa: E402
+from motiongen.body.random_motion import sample_motion  # noqa: E402
 from motiongen.body.procedural import ensure_procedural_model  # noqa: E402
-from motiongen.eval.metrics import TOE_JOINTS  # noqa: E402
+from motiongen.metrics import TOE_JOINTS  # noqa: E402
 from motiongen.export.video import render_video  # noqa: E402
 
 

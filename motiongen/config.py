@@ -7,37 +7,11 @@ Groups (see docs/config.md): `model` (tiny | paper | reference, from motiongen.m
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 from hydra.core.config_store import ConfigStore
 
-from motiongen.data.representation import DEFAULT_CONTACT_JOINTS
-from motiongen.data.sources import DataConfig
-from motiongen.data.windows import WindowConfig
-from motiongen.training.config import TrainConfig
-
-
-@dataclass
-class WindowNode:
-    """Hydra-friendly mirror of WindowConfig (lists instead of tuples)."""
-
-    length: int = 16
-    stride: int = 3
-    hop: int = 1
-    scene: bool = True
-    objects: bool = True
-    outside_occupied: bool = True
-    grid_res: list = field(default_factory=lambda: [32, 32, 32])
-    grid_lo: list = field(default_factory=lambda: [-0.6, 0.0, -0.6])
-    grid_hi: list = field(default_factory=lambda: [0.6, 1.2, 0.6])
-    representation: str = "absolute"  # absolute | root (docs/models.md)
-    contact_joints: list = field(default_factory=lambda: list(DEFAULT_CONTACT_JOINTS))
-    stance_speed: float = 0.2
-
-    def to_window_config(self) -> WindowConfig:
-        return WindowConfig(self.length, self.stride, self.hop, self.scene, self.objects, self.outside_occupied,
-                            tuple(self.grid_res), tuple(self.grid_lo), tuple(self.grid_hi), self.representation,
-                            tuple(self.contact_joints), self.stance_speed)
+from motiongen.importers.sources import DataConfig
+from motiongen.data.windows import WindowNode
+from motiongen.training.settings import TrainConfig
 
 
 _registered = False

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from motiongen.body.model import BodyModel
-from motiongen.body.motion import sample_motion
+from motiongen.body.random_motion import sample_motion
 from motiongen.capture.cameras import Cameras
 from motiongen.skeleton import BODY_JOINT_NAMES
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from motiongen.data.dataset_writer import DatasetWriter
-from motiongen.data.occupancy import OccupancyGrid
-from motiongen.data.trumans_release import GridSpec
+from motiongen.scene.occupancy import OccupancyGrid
+from motiongen.importers.trumans_release import GridSpec
 from motiongen.geometry import transform_points, local_to_world
 from motiongen.skeleton import BODY
 

@@ -15,13 +15,13 @@ import torch
 import trimesh
 
 from motiongen.body.model import load_body_model
-from motiongen.data.annotate_contact import annotate_dataset, main
-from motiongen.data.contact import (FLOOR, NONE, SCENE, BodySurface, ContactConfig, SceneTargets, joint_targets,
+from motiongen.annotation.annotate_contact import annotate_dataset, main
+from motiongen.annotation.vertex_contact import (FLOOR, NONE, SCENE, BodySurface, ContactConfig, SceneTargets, joint_targets,
                                     vertex_contacts)
-from motiongen.data.distance_field import GridField, MeshField, PlaneField, lattice_samples, winding_numbers
+from motiongen.scene.distance_field import GridField, MeshField, PlaneField, lattice_samples, winding_numbers
 from motiongen.data.format import MotionDataset
 from motiongen.data.dataset_writer import DatasetWriter
-from motiongen.data.voxelize import voxelize_mesh
+from motiongen.scene.voxelize import voxelize_mesh
 from motiongen.errors import DataError
 from motiongen.skeleton import BODY
 from tests.helpers import HOLD, SMALL, make_dataset, user_error, write_fake_release, write_posed_release
@@ -294,7 +294,7 @@ def test_joint_only_dataset_is_fitted(tmp_path):
 def test_trumans_layout(tmp_path):
     """The converted test release: the body is its SMPL-X; objects without meshes are listed and
     skipped, or annotated from object_meshes=; non-rigid object poses are refused."""
-    from motiongen.data.trumans import convert_trumans
+    from motiongen.importers.trumans import convert_trumans
 
     rel = tmp_path / "Data_release"
     write_posed_release(rel, tmp_path / "meshes")

@@ -12,15 +12,15 @@ import pytest
 import trimesh
 
 from motiongen.body.model import load_body_model
-from motiongen.data import augment_objects as edits
-from motiongen.data.annotate_contact import SurfaceBank, annotate_dataset
-from motiongen.data.augment import AugmentConfig, AugmentContext, augment_dataset, augment_sequence, main, object_track
-from motiongen.data.augment_offsets import (ContactEvent, blended_offsets, ramp_weights_span, smoothness_bound,
+from motiongen.annotation import augment_objects as edits
+from motiongen.annotation.annotate_contact import SurfaceBank, annotate_dataset
+from motiongen.annotation.augment import AugmentConfig, AugmentContext, augment_dataset, augment_sequence, main, object_track
+from motiongen.annotation.augment_offsets import (ContactEvent, blended_offsets, ramp_weights_span, smoothness_bound,
                                             target_trajectory)
-from motiongen.data.contact import BodySurface, ContactConfig
-from motiongen.data.distance_field import MeshField
+from motiongen.annotation.vertex_contact import BodySurface, ContactConfig
+from motiongen.scene.distance_field import MeshField
 from motiongen.data.format import MotionDataset
-from motiongen.data.sources import DataConfig, open_dataset
+from motiongen.importers.sources import DataConfig, open_dataset
 from motiongen.errors import ConfigError
 from tests.helpers import HOLD, SMALL, make_dataset, write_posed_release
 
@@ -104,7 +104,7 @@ def test_placement():
 
 @pytest.fixture(scope="module")
 def posed(tmp_path_factory):
-    from motiongen.data.trumans import convert_trumans
+    from motiongen.importers.trumans import convert_trumans
 
     base = tmp_path_factory.mktemp("posed")
     arrays = write_posed_release(base / "Data_release", base / "meshes")
@@ -262,7 +262,7 @@ def test_synthetic_dataset_end_to_end(tmp_path):
     """Both tools on the embedded synthetic dataset (one sequence in which an object is picked
     up, to keep the test short): labels, then augmented sequences that keep the contacts."""
     from motiongen.data.dataset_writer import DatasetWriter
-    from motiongen.data.synthetic import ACTIONS
+    from motiongen.synthetic import ACTIONS
 
     src = open_dataset(DataConfig(source="synthetic", size="small"), verbose=False)
     pick = ACTIONS.index("pick up")

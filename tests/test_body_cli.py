@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from motiongen.body.model import BodyModel
-from motiongen.body.motion import sample_motion
+from motiongen.body.random_motion import sample_motion
 from motiongen.body.procedural import ensure_procedural_model
 from motiongen.body.fit_cli import main
 from tests.helpers import user_error

@@ -8,7 +8,7 @@ from motiongen.body.analytic import analytic_init
 from motiongen.body.fit import FitResult, RefineConfig, fit_joints, refine, save_amass_npz
 from motiongen.body.mlp import JointsToBodyMLP, MLPConfig, canonicalise, triplets
 from motiongen.body.model import BodyModel
-from motiongen.body.motion import joint_limits, sample_motion
+from motiongen.body.random_motion import joint_limits, sample_motion
 from motiongen.body.procedural import ensure_procedural_model
 from motiongen.body.rotations import axis_angle_to_matrix, geodesic_angle, matrix_to_axis_angle
 from motiongen.errors import ConfigError

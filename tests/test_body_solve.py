@@ -5,9 +5,9 @@ import pytest
 import torch
 
 from motiongen.body.model import load_body_model
-from motiongen.body.motion import sample_motion
+from motiongen.body.random_motion import sample_motion
 from motiongen.body.solve import MotionBody
-from motiongen.eval.metrics import bone_consistency, grounded_slide
+from motiongen.metrics import bone_consistency, grounded_slide
 from motiongen.skeleton import BODY, BODY_PARENTS, FOOT_JOINTS, JOINT_SETS
 
 

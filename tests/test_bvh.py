@@ -17,15 +17,15 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from motiongen.body.model import forward_kinematics, load_body_model
-from motiongen.body.motion import sample_motion
+from motiongen.body.random_motion import sample_motion
 from motiongen.body.rotations import axis_angle_to_matrix
-from motiongen.data.bvh import BVH, load_bvh, parse_bvh, write_bvh
-from motiongen.data.bvh_import import bvh_to_body, import_bvh, resample
-from motiongen.data.bvh_detect import detect_up
+from motiongen.bvh.file_format import BVH, load_bvh, parse_bvh, write_bvh
+from motiongen.bvh.retarget import bvh_to_body, import_bvh, resample
+from motiongen.bvh.detect import detect_up
 from motiongen.data.format import MotionDataset
 from motiongen.errors import DataError
-from motiongen.eval.metrics import foot_skating_ratio
-from motiongen.export.bvh import TEMPLATE, joints_to_bvh, smplx_to_bvh
+from motiongen.metrics import foot_skating_ratio
+from motiongen.bvh.export import TEMPLATE, joints_to_bvh, smplx_to_bvh
 from motiongen.skeleton import BODY_JOINT_NAMES, BODY_PARENTS
 
 BVH_DIR = Path("/usr/share/assimp/models/BVH")
@@ -386,7 +386,7 @@ def test_cmu_with_a_wrong_up_axis_is_refused():
 
 def run_cli(*args):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.run([sys.executable, "-m", "motiongen.data.import_bvh", *args],
+    return subprocess.run([sys.executable, "-m", "motiongen.importers.bvh", *args],
                           capture_output=True, text=True, env=env, timeout=120)
 
 

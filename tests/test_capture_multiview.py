@@ -332,7 +332,7 @@ def test_cli_end_to_end_coco_layout(tmp_path, bm):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     from motiongen.capture.fit_multiview import main
-    from motiongen.data.import_amass import load_amass
+    from motiongen.importers.amass import load_amass
 
     rig = make_rig(bm, T=30, cameras=5, noise_px=1.0, drop=0.05, seed=3)
     cams, kp = write_rig(tmp_path, rig, "coco17")

@@ -7,7 +7,7 @@ from hydra import compose, initialize_config_dir
 
 from motiongen.config import register_configs
 from motiongen.models import PRESETS
-from motiongen.training.builders import data_config, mask_config, window_config
+from motiongen.loading.build import data_config, mask_config, window_config
 
 CONFIGS = str(Path(__file__).resolve().parents[1] / "motiongen" / "configs")
 register_configs()

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from motiongen.capture.contact_sensors import (ClockMap, filter_min_duration, main, otsu, process,
-                                               propose_threshold, resample)
+from motiongen.capture.contact_sensors import main
+from motiongen.capture.sensor_contact import ClockMap, filter_min_duration, otsu, process, propose_threshold, resample
 from motiongen.capture.sensor_csv import SensorRecording, read_sensor_csv
 from motiongen.data.format import MotionDataset
 from tests.helpers import user_error

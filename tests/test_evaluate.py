@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from motiongen.data.sources import DataConfig, open_dataset
+from motiongen.importers.sources import DataConfig, open_dataset
 from motiongen.eval.motion_scores import reference_metrics
 from motiongen.eval.pairs import SETTINGS, ProtocolConfig, make_pairs
 from motiongen.eval.scene_context import SceneContext

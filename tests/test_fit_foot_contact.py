@@ -10,7 +10,7 @@ import torch
 from motiongen.body.fit import RefineConfig, fit_joints, refine
 from motiongen.body.foot_velocity import foot_velocity_loss, foot_velocity_mask
 from motiongen.body.model import load_body_model
-from motiongen.body.motion import sample_motion
+from motiongen.body.random_motion import sample_motion
 from motiongen.errors import ConfigError
 from motiongen.body.fit_cli import main
 from motiongen.skeleton import FOOT_JOINTS

@@ -13,7 +13,7 @@ import trimesh
 
 from motiongen.data.format import DEFAULT_SPLITS, MotionDataset
 from motiongen.data.dataset_writer import DatasetWriter
-from motiongen.data.occupancy import OccupancyGrid
+from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.errors import DataError
 from motiongen.skeleton import BODY, JOINT_SETS
 

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from motiongen.data.occupancy import OccupancyGrid
+from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.errors import ConfigError, DataError
 from motiongen.routing import plan_path, walkable_map
 from motiongen.sampling.goal_input import load_goals_file, parse_goals

@@ -13,9 +13,9 @@ from scipy.spatial.transform import Rotation
 
 from motiongen.body.fit import fit_joints, save_amass_npz
 from motiongen.body.model import load_body_model
-from motiongen.body.motion import sample_motion
+from motiongen.body.random_motion import sample_motion
 from motiongen.data.format import MotionDataset
-from motiongen.data.import_amass import import_amass
+from motiongen.importers.amass import import_amass
 from motiongen.errors import DataError
 from motiongen.skeleton import FOOT_JOINTS, HEAD, PELVIS
 
@@ -169,7 +169,7 @@ def test_bad_files_name_file_and_field(bm, tmp_path, kind, message):
 
 def run_cli(*args):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.run([sys.executable, "-m", "motiongen.data.import_amass", *args],
+    return subprocess.run([sys.executable, "-m", "motiongen.importers.amass", *args],
                           capture_output=True, text=True, env=env, timeout=180)
 
 

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from motiongen.data.occupancy import OccupancyGrid
-from motiongen.eval.metrics import (apd, contact_rate, floor_penetration, foot_skating_ratio,
+from motiongen.scene.distance_field import surface_distance
+from motiongen.scene.occupancy import OccupancyGrid
+from motiongen.metrics import (apd, contact_rate, floor_penetration, foot_skating_ratio,
                                     goal_distances, goal_success, mean_jerk, pskl, scene_penetration, seam_jump,
                                     trajectory_fail_rate)
 from motiongen.skeleton import FOOT_JOINTS, PELVIS
@@ -109,19 +110,19 @@ def box_grid(top=0.5):
 
 def test_surface_distance_box():
     grid = box_grid()
-    sdf = grid.surface_distance()
-    assert grid.surface_distance() is sdf                  # built once, kept with the grid
+    sdf = surface_distance(grid)
+    assert surface_distance(grid) is sdf                  # built once, kept with the grid
     d = sdf(np.array([[1.0, 0.7, 1.0], [1.0, 0.4, 1.0], [1.0, 0.3, 0.6], [0.2, 0.3, 1.0], [1.0, 0.3, 0.5]]))
     np.testing.assert_allclose(d, [0.2, -0.1, -0.1, 0.3, 0.0], atol=0.011)
     # Off the grid: free, the true distance to the box (above it, and beside it at y = 0.25).
     off = sdf(np.array([[1.0, 2.5, 1.0], [-1.5, 0.25, 1.0], [1.0, 0.25, 3.5]]))
     np.testing.assert_allclose(off, [2.0, 2.0, 2.0], atol=0.02)
     # The floor half-space: a point 5 cm up, far from the box, is 5 cm from a surface.
-    with_floor = grid.surface_distance(floor_y=0.0)
+    with_floor = surface_distance(grid, floor_y=0.0)
     assert with_floor(np.array([[0.2, 0.05, 0.2]]))[0] == pytest.approx(0.05)
     assert with_floor(np.array([[1.0, 0.7, 1.0]]))[0] == pytest.approx(0.2, abs=0.011)   # the box is nearer
     assert sdf(np.array([[0.2, 0.05, 0.2]]))[0] > 0.2     # the kept field has no floor
-    empty = OccupancyGrid.from_dense(np.zeros((4, 4, 4), bool), [0, 0, 0], 0.1).surface_distance()
+    empty = surface_distance(OccupancyGrid.from_dense(np.zeros((4, 4, 4), bool), [0, 0, 0], 0.1))
     assert empty(np.zeros((1, 3)))[0] >= 100.0             # no surface at all: far
 
 
@@ -232,14 +233,14 @@ def _rigid_walk(T=40):
 
 
 def test_rigid_motion_has_zero_bone_variation():
-    from motiongen.eval.metrics import bone_consistency
+    from motiongen.metrics import bone_consistency
     from motiongen.skeleton import BODY_PARENTS
     b = bone_consistency(_rigid_walk(), BODY_PARENTS)
     assert b.cv_median < 1e-6 and b.cv_max < 1e-6 and b.max_deviation < 1e-6
 
 
 def test_stretched_bone_shows_its_deviation():
-    from motiongen.eval.metrics import bone_consistency, bone_lengths
+    from motiongen.metrics import bone_consistency, bone_lengths
     from motiongen.skeleton import BODY_PARENTS, LEFT_HIP
     j = _rigid_walk()
     # frame 10: the pelvis joint moves 0.5 m up, away from its body (a pinned joint left behind)
@@ -254,7 +255,7 @@ def test_stretched_bone_shows_its_deviation():
 
 
 def test_grounded_slide_is_the_drag_speed():
-    from motiongen.eval.metrics import grounded_slide
+    from motiongen.metrics import grounded_slide
     assert grounded_slide(with_feet(still(), 0.02, 0.0), FPS) == 0.0                    # planted
     assert grounded_slide(with_feet(still(), 0.02, 0.3), FPS) == pytest.approx(0.3)     # dragged at 0.3 m/s
     assert np.isnan(grounded_slide(with_feet(still(), 0.2, 0.3), FPS))                  # never on the floor

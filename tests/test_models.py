@@ -7,7 +7,7 @@ import time
 import pytest
 import torch
 
-from motiongen.diffusion import GaussianDiffusion, known_mask
+from motiongen.diffusion import GaussianDiffusion, known_mask, sample
 from motiongen.models import (PRESETS, Condition, EncodedCondition, ModelConfig, build_model, count_parameters,
                               drop_conditions, model_config)
 from motiongen.models.layers import fast_dropout
@@ -174,7 +174,7 @@ def test_sampler_encodes_condition_once(one_thread):
     calls = []
     model.scene_encoder.register_forward_hook(lambda *a: calls.append(1))
     d = GaussianDiffusion()
-    x = d.sample(model, (2, L, J * 3), _cond(2), steps=5, guidance_scale=2.0,
+    x = sample(d, model, (2, L, J * 3), _cond(2), steps=5, guidance_scale=2.0,
                  generator=torch.Generator().manual_seed(0))
     assert x.shape == (2, L, J * 3)
     assert len(calls) == 1  # conditional encode only; the unconditional twin skips the encoder
@@ -228,7 +228,7 @@ def test_bf16_layers_keep_the_output_within_a_few_percent(one_thread):
 
 def test_precision_auto_is_bf16_for_paper_size_layers_only():
     from motiongen.errors import ConfigError
-    from motiongen.training.builders import resolve_precision
+    from motiongen.loading.build import resolve_precision
 
     paper = build_model(model_config("paper"), J, A, L)
     assert resolve_precision(_tiny(), "auto") == "fp32" and resolve_precision(paper, "auto") == "bf16"

@@ -17,8 +17,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def _checkpoint(path: Path) -> Path:
     """A checkpoint of a random-init very small model in train.py's format (the CLI's
     mechanics do not depend on training; tests/test_sampling.py covers the loop)."""
-    from motiongen.config import WindowNode
-    from motiongen.data.sources import DataConfig
+    from motiongen.data.windows import WindowNode
+    from motiongen.importers.sources import DataConfig
     from motiongen.diffusion import DiffusionConfig, MaskConfig
     from motiongen.models import build_model, model_config
     from motiongen.skeleton import BODY
@@ -133,7 +133,7 @@ def test_checkpoints_from_before_the_body_changes_load_as_they_were_trained(tmp_
     """A checkpoint whose config predates window.representation / stance channels /
     mask.predict_goal holds absolute joints (66 channels) and pinned goals: it must load as
     such, not with today's defaults."""
-    from motiongen.training.builders import load_model
+    from motiongen.loading.build import load_model
 
     path = _checkpoint(tmp_path / "new.pt")
     state = torch.load(path, weights_only=False)

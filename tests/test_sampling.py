@@ -137,7 +137,7 @@ class Garbage(nn.Module):
 
 
 def test_one_body_across_seams_whatever_the_network_predicts():
-    from motiongen.eval.metrics import bone_consistency, bone_lengths
+    from motiongen.metrics import bone_consistency, bone_lengths
     from motiongen.skeleton import BODY_PARENTS
 
     with pytest.warns(UserWarning, match="max_episodes"):

@@ -9,15 +9,15 @@ import pytest
 import torch
 import trimesh
 
-from motiongen.data import scene as scene_mod
-from motiongen.data.occupancy import OccupancyGrid
-from motiongen.data.local_occupancy import (DynamicObjects, GridBank, LocalGridSpec, TorchOccupancy,
+from motiongen.scene import loading as scene_mod
+from motiongen.scene.occupancy import OccupancyGrid
+from motiongen.scene.local_occupancy import (DynamicObjects, GridBank, LocalGridSpec, TorchOccupancy,
                                             frames_from_pose, local_occupancy, local_occupancy_at,
                                             local_occupancy_np)
-from motiongen.data.scene import load_scene_grid, load_scene_mesh
+from motiongen.scene.loading import load_scene_grid, load_scene_mesh
 from motiongen.routing import walkable_map
 from motiongen.routing.walkable import open_floor
-from motiongen.data.voxelize import voxelize_mesh
+from motiongen.scene.voxelize import voxelize_mesh
 from motiongen.errors import DataError
 
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from motiongen.data.format import DEFAULT_SPLITS, MotionDataset
-from motiongen.data.synthetic import ACTIONS, SIZES, _scene_job, generate
-from motiongen.data.synthetic.__main__ import main as cli_main
+from motiongen.synthetic import ACTIONS, SIZES, _scene_job, generate
+from motiongen.synthetic.__main__ import main as cli_main
 from motiongen.errors import ConfigError, DataError
 from motiongen.skeleton import BODY, FOOT_JOINTS, HAND_JOINTS
 

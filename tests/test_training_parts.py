@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from motiongen.errors import MotiongenError
-from motiongen.training.checkpoint import load_checkpoint, save_checkpoint
+from motiongen.loading.checkpoint import load_checkpoint, save_checkpoint
 from motiongen.training.data_order import ResumableBatchSampler
 from motiongen.training.ema import EMA
 

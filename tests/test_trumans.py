@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from motiongen.data.format import MotionDataset
-from motiongen.data.occupancy import _ball_boxes, near_occupied
-from motiongen.data.trumans import convert_trumans, main
-from motiongen.data.trumans_release import TRUMANS_ACTIONS, interpret_object_flags, scene_ids_from_names
+from motiongen.scene.occupancy import _ball_boxes, near_occupied
+from motiongen.importers.trumans import convert_trumans, main
+from motiongen.importers.trumans_release import TRUMANS_ACTIONS, interpret_object_flags, scene_ids_from_names
 from motiongen.errors import ConfigError, DataError
 from tests.helpers import GRID, SCENE_FILES, SEQS, SMALL, write_fake_release
 
@@ -284,7 +284,7 @@ def test_cli_subprocess(release, tmp_path):
     """The real `python -m` entry point: a corrupt release exits 2 with one line, no traceback."""
     src, _ = release
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    cmd = [sys.executable, "-m", "motiongen.data.trumans"]
+    cmd = [sys.executable, "-m", "motiongen.importers.trumans"]
     bad = _copy_release(src, tmp_path / "rel")
     (bad / "frame_id.npy").unlink()
     r = subprocess.run(cmd + [f"release={bad}", f"out={tmp_path / 'o'}"], capture_output=True, text=True, env=env)

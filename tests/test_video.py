@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from motiongen.body.model import BodyModel
-from motiongen.body.motion import sample_motion
+from motiongen.body.random_motion import sample_motion
 from motiongen.body.procedural import ensure_procedural_model
 from motiongen.export.render_body import cluster_decimate, contact_anchors, facing, rasterise
 from motiongen.export.video import render_video

@@ -82,7 +82,7 @@ def test_local_scene_matches_brute_force(tmp_path):
 
 def test_obstacle_appears_in_front(tmp_path):
     """A window whose goal stands 0.3 m in front of (facing) the obstacle sees it in local +z."""
-    from motiongen.data.local_occupancy import local_occupancy_np
+    from motiongen.scene.local_occupancy import local_occupancy_np
     from motiongen.geometry import local_to_world
     ds = _ds(tmp_path)
     wd = WindowDataset(ds, "train", WindowConfig())
@@ -97,7 +97,7 @@ def test_dynamic_object_enters_the_local_grid(tmp_path):
     """An object slot posed at the goal shows up in the window's occupancy."""
     import trimesh
     from motiongen.data.dataset_writer import DatasetWriter
-    from motiongen.data.occupancy import OccupancyGrid
+    from motiongen.scene.occupancy import OccupancyGrid
     from motiongen.skeleton import BODY
     from tests.helpers import walking_sequence
     w = DatasetWriter(tmp_path / "obj", BODY, ["walk"], 30.0, num_object_slots=1)

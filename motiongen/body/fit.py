@@ -344,7 +344,7 @@ def save_amass_npz(path: str | Path, fit: FitResult, fps: float, gender: str = "
     """AMASS SMPL-X layout: poses (T, 165) = root 3 + body 63 + jaw 3 + eyes 6 + hands 90
     (zeros beyond the body), trans, betas, mocap_framerate, gender; plus root_orient,
     pose_body, joints and per-frame joint error, and `up` = "y": unlike AMASS (z-up) our world
-    is y-up, and `motiongen.data.import_amass` reads this key. Written to a temp file, then
+    is y-up, and `motiongen.importers.amass` reads this key. Written to a temp file, then
     renamed."""
     path = Path(path)
     T = fit.transl.shape[0]

@@ -136,7 +136,7 @@ def run(argv: list[str]) -> dict:
     opts = parse_args(argv)
     from motiongen.body.fit import RefineConfig, fit_joints, save_amass_npz
     from motiongen.body.model import load_body_model
-    from motiongen.eval.metrics import foot_skating_ratio
+    from motiongen.metrics import foot_skating_ratio
 
     joints, fps, desc = load_input(opts)
     if opts["fps"] is not None:

@@ -95,7 +95,7 @@ class MotionBody:
         projection's business, so this is a 10-parameter problem, solved in milliseconds."""
         from scipy.optimize import least_squares
 
-        from motiongen.eval.metrics import bone_lengths
+        from motiongen.metrics import bone_lengths
 
         parents = bm.parents
         kids = np.array([c for c, p in enumerate(parents) if p >= 0])

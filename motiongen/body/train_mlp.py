@@ -6,7 +6,7 @@
 Training pairs are (joints, parameters) with joints produced by *our* body model from the
 parameters, so the network learns the inverse of exactly the kinematics that refinement uses.
 Parameters come from a dataset's SMPL-X fields when `data.root` names one that has them,
-otherwise from `motiongen.body.motion.sample_motion` (joint-limited smooth random motion and
+otherwise from `motiongen.body.random_motion.sample_motion` (joint-limited smooth random motion and
 gait cycles). Logs to TensorBoard under `out`; the checkpoint `out/mlp.pt` holds the config.
 """
 
@@ -24,7 +24,7 @@ import torch
 from motiongen.body._threads import torch_threads
 from motiongen.body.mlp import JointsToBodyMLP, MLPConfig, canonicalise
 from motiongen.body.model import BodyModel, load_body_model
-from motiongen.body.motion import sample_motion
+from motiongen.body.random_motion import sample_motion
 from motiongen.body.rotations import axis_angle_to_matrix, rot6d_to_matrix
 from motiongen.errors import ConfigError, DataError
 from motiongen.geometry import yaw_matrix

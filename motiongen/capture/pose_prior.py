@@ -14,9 +14,9 @@ is out of reach, only more expensive; `dims` < 63 restricts poses to a subspace.
 
 Where the statistics come from (`motiongen pose-prior`, `fit_prior`):
 SMPL-X body poses of a motiongen dataset (`smplx_body_pose.npy`, e.g. AMASS imported with
-`motiongen.data.import_amass`) or AMASS-style npz files (`poses`/`pose_body`, e.g. our own
+`motiongen.importers.amass`) or AMASS-style npz files (`poses`/`pose_body`, e.g. our own
 fits). Without one, `default_prior()` is fitted to parameter sequences of
-`motiongen.body.motion.sample_motion` (the generator the joints→SMPL-X MLP trains on: per-joint
+`motiongen.body.random_motion.sample_motion` (the generator the joints→SMPL-X MLP trains on: per-joint
 anatomical limits, smooth random postures, walking cycles). That is a hand-designed
 anatomical prior, not statistics of real people; docs/capture.md says so.
 """
@@ -106,7 +106,7 @@ def fit_prior(poses: np.ndarray, dims: int | None = None, min_std: float = DEFAU
 def default_prior(min_std: float = DEFAULT_MIN_STD, dims: int | None = None) -> PosePrior:
     """The built-in prior: PCA of `sample_motion` poses (fixed seed; about 0.5 s, cached in the
     process: treat the result as read-only)."""
-    from motiongen.body.motion import sample_motion
+    from motiongen.body.random_motion import sample_motion
 
     rng = np.random.default_rng(DEFAULT_SEED)
     poses = [sample_motion(DEFAULT_FRAMES, 30.0, rng)["body_pose"] for _ in range(DEFAULT_SEQUENCES)]
@@ -158,7 +158,7 @@ def _poses_from_dataset(root: str) -> np.ndarray:
 
 
 def _poses_from_amass(path: str) -> np.ndarray:
-    from motiongen.data.import_amass import load_amass
+    from motiongen.importers.amass import load_amass
 
     return load_amass(path).body_pose
 

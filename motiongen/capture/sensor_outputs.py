@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from motiongen.capture.contact_sensors import SensorContact, joint_contact
+from motiongen.capture.sensor_contact import SensorContact, joint_contact
 from motiongen.capture.sensor_csv import SensorRecording
 from motiongen.errors import DataError
 from motiongen.skeleton import JOINT_SETS

@@ -1,6 +1,6 @@
 """On-disk per-vertex contact labels of a dataset: the optional ``<root>/vertex_contact/``
 folder (docs/data_format.md, "Per-vertex contact"). Written by
-`motiongen.data.annotate_contact` and the augmentation tool, read memory-mapped through
+`motiongen.annotation.annotate_contact` and the augmentation tool, read memory-mapped through
 `MotionDataset.vertex_contact()`.
 
     info.json          format, version, num_frames N, num_vertices V, joint_names, targets,
@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from motiongen.data.format import SMPLX_FIELDS
-from motiongen.data.dataset_writer import _RawColumn
-from motiongen.data.occupancy import load_npy
+from motiongen.data.schema import SMPLX_FIELDS
+from motiongen.data.columns import RawColumn
+from motiongen.scene.occupancy import load_npy
 from motiongen.errors import DataError
 from motiongen.staging import replace_dir
 
@@ -57,7 +57,7 @@ class VertexContactWriter:
             shutil.rmtree(self.tmp)
         self.tmp.mkdir(parents=True)
         self.V, self.J = int(num_vertices), int(num_joints)
-        col = lambda name, shape, dt: _RawColumn(self.tmp / f"{name}.npy", shape, dt)  # noqa: E731
+        col = lambda name, shape, dt: RawColumn(self.tmp / f"{name}.npy", shape, dt)  # noqa: E731
         self.cols = {"bits": col("bits", ((self.V + 7) // 8,), np.uint8), "target": col("target", (), np.int32),
                      "distance": col("distance", (), np.float32), "joints": col("joints", (self.J,), np.int32),
                      "penetration": col("penetration", (3,), np.float32),

@@ -12,38 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from motiongen.data.format import DEFAULT_SPLITS, FORMAT_NAME, FORMAT_VERSION, SMPLX_FIELDS
-from motiongen.data.occupancy import OccupancyGrid
+from motiongen.data.columns import RawColumn
+from motiongen.data.schema import DEFAULT_SPLITS, FORMAT_NAME, FORMAT_VERSION, SMPLX_FIELDS
+from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.errors import DataError
 from motiongen.skeleton import JointSet
 from motiongen.staging import replace_dir
 
-
-
-class _RawColumn:
-    """Appends rows of a fixed per-row shape/dtype to a raw file; `finish` writes the .npy."""
-
-    def __init__(self, path: Path, row_shape: tuple[int, ...], dtype):
-        self.path, self.row_shape, self.dtype = path, tuple(row_shape), np.dtype(dtype)
-        self.raw = path.with_suffix(".raw")
-        self.f = open(self.raw, "wb")
-        self.rows = 0
-
-    def append(self, a: np.ndarray) -> None:
-        a = np.ascontiguousarray(a, dtype=self.dtype)
-        if a.shape[1:] != self.row_shape:
-            raise ValueError(f"{self.path.name}: rows of shape {self.row_shape} expected, got {a.shape[1:]}")
-        a.tofile(self.f)
-        self.rows += a.shape[0]
-
-    def finish(self) -> None:
-        self.f.close()
-        header = {"descr": np.lib.format.dtype_to_descr(self.dtype), "fortran_order": False,
-                  "shape": (self.rows,) + self.row_shape}
-        with open(self.path, "wb") as out, open(self.raw, "rb") as src:
-            np.lib.format.write_array_header_2_0(out, header)
-            shutil.copyfileobj(src, out, length=16 << 20)
-        self.raw.unlink()
 
 
 class DatasetWriter:
@@ -76,7 +51,7 @@ class DatasetWriter:
         self.joint_set, self.actions, self.fps = joint_set, list(actions), float(fps)
         self.K, self.has_smplx, self.overwrite = int(num_object_slots), bool(has_smplx), overwrite
         J, A, K = joint_set.num_joints, len(self.actions), self.K
-        col = lambda name, shape, dt: _RawColumn(self.tmp / f"{name}.npy", shape, dt)  # noqa: E731
+        col = lambda name, shape, dt: RawColumn(self.tmp / f"{name}.npy", shape, dt)  # noqa: E731
         self.cols = {"joints": col("joints", (J, 3), np.float32), "scene_id": col("scene_id", (), np.int32),
                      "contact": col("contact", (J,), bool), "actions": col("actions", (A,), bool)}
         if K:

@@ -16,15 +16,12 @@ from typing import Iterator
 
 import numpy as np
 
-from motiongen.data.occupancy import OccupancyGrid, load_npy
+from motiongen.data.contact_labels import VertexContact
+from motiongen.data.schema import DEFAULT_SPLITS, FORMAT_NAME, FORMAT_VERSION, SMPLX_FIELDS  # noqa: F401 (the format's names)
+from motiongen.scene.occupancy import OccupancyGrid, load_npy
 from motiongen.errors import DataError
 from motiongen.skeleton import JointSet, joint_set_for
 
-FORMAT_NAME = "motiongen-dataset"
-FORMAT_VERSION = 1
-SMPLX_FIELDS = {"global_orient": 3, "body_pose": 63, "transl": 3, "betas": 10}
-# TRUMANS convention (seed 001, B.2): split by scene id.
-DEFAULT_SPLITS = {"train": list(range(1, 71)), "val": list(range(71, 81)), "test": list(range(91, 101))}
 
 
 @dataclass
@@ -170,9 +167,8 @@ class MotionDataset:
 
     def vertex_contact(self):
         """The optional per-vertex contact labels (``vertex_contact/``, written by
-        `motiongen.data.annotate_contact`) as a memory-mapped
+        `motiongen.annotation.annotate_contact`) as a memory-mapped
         `motiongen.data.contact_labels.VertexContact`, or None when the dataset has none."""
-        from motiongen.data.contact_labels import VertexContact
 
         return VertexContact.open(self.root, self.num_frames, list(self.joint_set.names))
 

@@ -1,6 +1,6 @@
 """Training on a dataset together with augmented sequences made from it (`data.augmented`).
 
-`motiongen.data.augment` writes the augmented sequences as a dataset of their own (same scenes,
+`motiongen.annotation.augment` writes the augmented sequences as a dataset of their own (same scenes,
 edited objects as new objects). `mixed_dataset` writes the source dataset plus the augmented
 sequences of its *train* scenes into one dataset (cached: built once per combination), so every
 reader (windows, statistics, validation, evaluation) sees one ordinary dataset. Augmented

@@ -185,12 +185,3 @@ class GaussianDiffusion:
         if channel_weights is not None:
             w = w * channel_weights.to(window.dtype)
         return (per * w).sum() / w.sum().clamp(min=1e-8)
-
-    # -- sampling (thin wrapper; see samplers.py) -------------------------------------------
-    def sample(self, model, shape, cond, known=None, known_mask=None, sampler="ddim", steps=25,
-               eta=0.0, guidance_scale=1.0, generator=None, progress=False, **kwargs) -> Tensor:
-        from motiongen.diffusion.samplers import sample
-
-        return sample(self, model, shape, cond, known=known, known_mask=known_mask, sampler=sampler,
-                      steps=steps, eta=eta, guidance_scale=guidance_scale, generator=generator,
-                      progress=progress, **kwargs)

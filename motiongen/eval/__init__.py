@@ -1,1 +1,1 @@
-"""Evaluation: motion-quality metrics (pure numpy, see motiongen.eval.metrics)."""
+"""Evaluation: motion-quality metrics (pure numpy, see motiongen.metrics)."""

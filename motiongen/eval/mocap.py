@@ -4,15 +4,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from motiongen.data.bvh_import import import_bvh
+from motiongen.bvh.retarget import import_bvh
 from motiongen.errors import ConfigError
-from motiongen.eval import metrics as M
+from motiongen import metrics as M
 from motiongen.skeleton import BODY
 
 
 def mocap_body_metrics(paths, fps: float = 30.0) -> dict:
     """The Body table's row for real mocap measured the same way: BVH clips through our
-    importer (`motiongen.data.bvh_import.import_bvh`, 22 joints, y-up, 30 fps, lowest joint on the
+    importer (`motiongen.bvh.retarget.import_bvh`, 22 joints, y-up, 30 fps, lowest joint on the
     floor), per-clip metrics averaged (grounded slide: median over clips). paths: BVH files or
     folders of them. Scene metrics are n/a (no scene)."""
     files = []

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from motiongen.eval import metrics as M
+from motiongen import metrics as M
 from motiongen.eval.pairs import ProtocolConfig
 from motiongen.eval.scene_context import HAND_NAMES, SceneContext
 from motiongen.skeleton import LEFT_HIP, PELVIS, RIGHT_HIP, joint_set_for

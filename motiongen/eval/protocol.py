@@ -8,7 +8,7 @@
   at its pose there), the route ends where the data's pelvis stood during the interaction,
   and the goal carries the interaction action. Objects are placed through `generate(objects=)`.
 * Each pair is sampled k times in one batch (`num_samples=k`); every metric of
-  `motiongen.eval.metrics` is computed per sample (APD per pair) and averaged.
+  `motiongen.metrics` is computed per sample (APD per pair) and averaged.
 * The reference row applies the same metrics to the dataset's own motion in the same scenes.
 
 Pairs depend only on (seed, scene id, setting): evaluating a subset of scenes gives the same
@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from motiongen.eval import metrics as M
+from motiongen import metrics as M
 from motiongen.eval.motion_scores import ReferenceResult, goal_metrics, motion_metrics, reference_metrics
 from motiongen.eval.pairs import SETTINGS, Pair, ProtocolConfig, make_pairs, pair_seed
 from motiongen.eval.scene_context import SceneContext

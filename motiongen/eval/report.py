@@ -164,7 +164,7 @@ def log_tensorboard(run_dir, report: dict, images: dict[str, Path], step: int) -
 def _dataset_config(cfg, ckpt_config):
     from omegaconf import OmegaConf
 
-    from motiongen.data.sources import DataConfig
+    from motiongen.importers.sources import DataConfig
 
     node = cfg.get("data") or (ckpt_config.get("data") if ckpt_config is not None else None)
     if node is None:
@@ -229,11 +229,11 @@ def run(cfg, default_out: Path) -> dict:
     if threads > 0:
         torch.set_num_threads(threads)
     device = str(cfg.device)
-    from motiongen.training.builders import load_model
+    from motiongen.loading.build import load_model
 
     loaded = load_model(ckpt, device, precision=str(cfg.get("precision") or "auto"))
 
-    from motiongen.data.sources import open_dataset
+    from motiongen.importers.sources import open_dataset
 
     dcfg = _dataset_config(cfg, loaded.config)
     ds = open_dataset(dcfg, verbose=True)

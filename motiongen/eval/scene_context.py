@@ -9,6 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from motiongen.routing import walkable_map
+from motiongen.scene.distance_field import surface_distance
+from motiongen.scene.voxelize import voxelize_mesh
 from motiongen.skeleton import PELVIS
 from motiongen.spans import true_runs
 
@@ -40,7 +42,7 @@ class SceneContext:
     @property
     def sdf(self):
         """The grid's signed distance field (built once per grid)."""
-        return self.grid.surface_distance()
+        return surface_distance(self.grid)
 
     def surface(self, points) -> np.ndarray:
         """(N,) distance (m) of points (N, 3) to the nearest surface, the floor y = 0 included."""
@@ -104,8 +106,6 @@ class SceneContext:
         """(occupancy grid in the object frame, KD-tree of surface samples in the object frame) or None."""
         if oid not in self._obj_cache:
             from scipy.spatial import cKDTree
-
-            from motiongen.data.voxelize import voxelize_mesh
 
             mesh = self.ds.object_mesh(oid)
             if mesh is None:

@@ -1,7 +1,7 @@
 """Networks: the transformer denoiser and its scene / action encoders."""
 
 from motiongen.models.condition import Condition, drop_conditions
-from motiongen.models.config import PRESETS, ModelConfig, model_config
+from motiongen.models.presets import PRESETS, ModelConfig, model_config
 from motiongen.models.denoiser import Denoiser, EncodedCondition, build_model, count_parameters
 
 __all__ = [

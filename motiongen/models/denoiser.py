@@ -16,7 +16,7 @@ from torch import Tensor, nn
 
 from motiongen.models.action_encoder import ActionEncoder
 from motiongen.models.condition import Condition
-from motiongen.models.config import ModelConfig
+from motiongen.models.presets import ModelConfig
 from motiongen.models.layers import Dropout, TransformerStack, sinusoidal_embedding
 from motiongen.models.scene_encoder import SceneEncoder
 

@@ -48,12 +48,13 @@ import numpy as np
 import torch
 
 from motiongen.diffusion.masks import known_mask, replace_mask
+from motiongen.diffusion.samplers import sample
 from motiongen.errors import ConfigError
 from motiongen.geometry import canonical_frame, invert_rigid, local_to_world, transform_points
 from motiongen.routing import WalkableMap
 from motiongen.sampling.assemble import blend_seam, solve_smoothness_for_rate
 from motiongen.sampling.goals import Goal, Route, check_actions, plan_route
-from motiongen.sampling.motion import Episode, LoopConfig, Motion, SamplerSettings
+from motiongen.sampling.settings import Episode, LoopConfig, Motion, SamplerSettings
 from motiongen.sampling.interactions import hand_targets, merge_targets, seat_height, seat_shift
 from motiongen.sampling.scene_query import SceneQuery
 from motiongen.skeleton import LEFT_HIP, PELVIS, RIGHT_HIP
@@ -83,7 +84,7 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
              loop: LoopConfig = LoopConfig(), log=None, body_model=None) -> Motion:
     """Generate S = num_samples motions from `start` through `goals` in `scene`.
 
-    loaded: a `LoadedModel` (training.builders.load_model). scene: an OccupancyGrid or None
+    loaded: a `LoadedModel` (loading.build.load_model). scene: an OccupancyGrid or None
     (empty floor, no bounds). start (2,) world (x, z); goals: `Goal`s (actions from
     loaded.action_names). route: a precomputed `plan_route` result (else planned here with
     `path` / `subgoal_spacing` on `walkable`, built from `scene` with `body_radius` if None).
@@ -226,7 +227,7 @@ def generate(loaded, scene=None, start=(0.0, 0.0), goals: Sequence[Goal] = (), *
 
         cond = Condition(scene=query(at_goal), actions=torch.from_numpy(act).to(device) if A else None)
         mask = mask.to(device)
-        x0 = diffusion.sample(model, (S, L, D), cond, known=torch.from_numpy(known).to(device),
+        x0 = sample(diffusion, model, (S, L, D), cond, known=torch.from_numpy(known).to(device),
                               known_mask=mask, replace_mask=replace_mask(mask, predict_goal),
                               sampler=sampler.sampler, steps=sampler.steps, eta=sampler.eta,
                               guidance_scale=sampler.guidance_scale, generator=generator)

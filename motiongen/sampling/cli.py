@@ -60,7 +60,7 @@ def run(cfg, default_out: Path) -> dict:
     if not ckpt.is_file():
         raise DataError(ckpt, None, "checkpoint file does not exist")
 
-    from motiongen.training.builders import load_model
+    from motiongen.loading.build import load_model
 
     device = str(cfg.device)
     loaded = load_model(ckpt, device, precision=str(cfg.get("precision") or "auto"))
@@ -142,7 +142,7 @@ def run(cfg, default_out: Path) -> dict:
                   flush=True)
         S = motion.num_samples
         if _bool(cfg, "bvh"):
-            from motiongen.export.bvh import export_bvh
+            from motiongen.bvh.export import export_bvh
 
             for s in range(S):
                 name = "motion.bvh" if S == 1 else f"motion_{s}.bvh"

@@ -54,7 +54,7 @@ def body_figures(motion: Motion) -> dict:
     """Per sample, what the motion is as a body (docs/metrics.md): bone-length CV and largest
     deviation, grounded-toe median slide speed, foot skating; for the output and for the
     network's own joints. Lists of S values."""
-    from motiongen.eval import metrics as M
+    from motiongen import metrics as M
     from motiongen.skeleton import joint_set_for
 
     parents = joint_set_for(motion.joint_names).parents

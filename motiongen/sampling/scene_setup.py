@@ -18,7 +18,7 @@ class SceneInfo:
     grid: object | None                     # OccupancyGrid or None (empty floor)
     label: str
     objects: list = field(default_factory=list)   # [(OccupancyGrid, pose (4, 4))]
-    synthetic: object | None = None         # motiongen.data.synthetic.scenes.Scene when known
+    synthetic: object | None = None         # motiongen.synthetic.scenes.Scene when known
 
 
 def _dataset_scene(ds, scene_id: int, label: str, with_objects: bool) -> SceneInfo:
@@ -31,7 +31,7 @@ def _dataset_scene(ds, scene_id: int, label: str, with_objects: bool) -> SceneIn
         # Movable objects at their resting poses: the first frame of the scene's first sequence.
         seq = next((s for s in ds.sequences if s.scene == scene_id), None)
         if seq is not None:
-            from motiongen.data.voxelize import voxelize_mesh
+            from motiongen.scene.voxelize import voxelize_mesh
 
             ids = np.asarray(ds.object_ids[seq.start])
             for slot, oid in enumerate(ids):
@@ -49,7 +49,7 @@ def resolve_scene(spec, ckpt_config=None, voxel_size: float = 0.02, up: str = "y
     spec = str(spec)
     if spec.startswith("synthetic:"):
         sid = _scene_id(spec.split(":", 1)[1], spec)
-        from motiongen.data.sources import DataConfig, open_dataset
+        from motiongen.importers.sources import DataConfig, open_dataset
 
         data = ckpt_config.get("data") if ckpt_config is not None else None
         if data is not None and data.get("source") == "synthetic":
@@ -68,7 +68,7 @@ def resolve_scene(spec, ckpt_config=None, voxel_size: float = 0.02, up: str = "y
         from motiongen.data.format import MotionDataset
 
         return _dataset_scene(MotionDataset.open(root), _scene_id(sid, spec), spec, objects)
-    from motiongen.data.scene import load_scene_grid
+    from motiongen.scene.loading import load_scene_grid
 
     return SceneInfo(load_scene_grid(spec, voxel_size=voxel_size, up=up), spec)
 
@@ -84,7 +84,7 @@ def _synthetic_layout(scene_id: int, seed: int, grid):
     """The generator's layout of a synthetic scene (seats, beds), rebuilt from its seed; None if
     it does not reproduce the stored grid (another generator version)."""
     try:
-        from motiongen.data.synthetic.scenes import make_scene
+        from motiongen.synthetic.scenes import make_scene
 
         scene = make_scene(scene_id, np.random.default_rng([seed, scene_id]))
         g = scene.grid()

@@ -10,7 +10,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from motiongen.skeleton import BODY_PARENTS  # noqa: E402
-from motiongen.training.builders import sample_windows  # noqa: E402
+from motiongen.loading.build import sample_windows  # noqa: E402
 
 
 def _bones(ax, pose: np.ndarray, color, dx: float = 0.0) -> None:

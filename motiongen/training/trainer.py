@@ -14,15 +14,15 @@ from omegaconf import DictConfig, OmegaConf
 from torch.nn.parallel import DistributedDataParallel as DDP
 from torch.utils.data import DataLoader
 
-from motiongen.data.sources import open_dataset
+from motiongen.importers.sources import open_dataset
 from motiongen.data.windows import NormStats, WindowDataset
 from motiongen.diffusion.masks import loss_mask
 from motiongen.errors import ConfigError, MotiongenError
 from motiongen.training import distributed as dd
-from motiongen.training.builders import (batch_condition, build_from_config, data_config, known_mask_for_batch,
+from motiongen.loading.build import (batch_condition, build_from_config, data_config, known_mask_for_batch,
                                          goal_predicted, loss_channel_weights, window_config)
-from motiongen.training.checkpoint import find_resume, load_checkpoint, save_checkpoint
-from motiongen.training.config import TrainConfig
+from motiongen.loading.checkpoint import find_resume, load_checkpoint, save_checkpoint
+from motiongen.training.settings import TrainConfig
 from motiongen.training.data_order import ResumableBatchSampler
 from motiongen.training.ema import EMA
 

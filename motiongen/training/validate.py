@@ -6,7 +6,7 @@ import torch
 from torch.utils.data import DataLoader, Subset
 
 from motiongen.diffusion.masks import loss_mask
-from motiongen.training.builders import batch_condition, goal_predicted, known_mask_for_batch, loss_channel_weights
+from motiongen.loading.build import batch_condition, goal_predicted, known_mask_for_batch, loss_channel_weights
 
 
 @torch.no_grad()

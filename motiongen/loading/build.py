@@ -1,0 +1,208 @@
+"""Build the model, diffusion, conditions and masks from a resolved config or a checkpoint."""
+
+from __future__ import annotations
+
+from dataclasses import fields
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from motiongen.data.representation import Layout
+from motiongen.importers.sources import DataConfig
+from motiongen.data.windows import WindowConfig, WindowNode
+from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, sample
+from motiongen.diffusion.masks import MaskConfig, predicts_goal, replace_mask, sample_known_mask
+from motiongen.errors import ConfigError
+from motiongen.models import Condition, ModelConfig, build_model
+from motiongen.models.condition import drop_conditions
+from motiongen.skeleton import JointSet
+
+
+def _dataclass_from(cls, node):
+    d = OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else dict(node)
+    known = {f.name for f in fields(cls)}
+    unknown = set(d) - known
+    if unknown:
+        raise ConfigError(f"unknown {cls.__name__} key(s): {sorted(unknown)}")
+    return cls(**d)
+
+
+def data_config(cfg) -> DataConfig:
+    return _dataclass_from(DataConfig, cfg.data)
+
+
+def window_config(cfg) -> WindowConfig:
+    return _dataclass_from(WindowNode, cfg.window).to_window_config()
+
+
+def mask_config(cfg) -> MaskConfig:
+    return _dataclass_from(MaskConfig, cfg.mask)
+
+
+def build_from_config(cfg, joint_set: JointSet, action_names: list[str]):
+    """(model, diffusion, checkpoint metadata) for a run config."""
+    mcfg = _dataclass_from(ModelConfig, cfg.model)
+    dcfg = _dataclass_from(DiffusionConfig, cfg.diffusion)
+    w = window_config(cfg)
+    if not w.scene and mcfg.use_scene:
+        # Windows without a scene grid: a scene encoder would never see an input (and under
+        # DDP its parameters would never get a gradient).
+        from dataclasses import replace as _replace
+        mcfg = _replace(mcfg, use_scene=False)
+    if not 0 <= mcfg.temporal_basis <= w.length:
+        raise ConfigError(f"model.temporal_basis={mcfg.temporal_basis}: expected 0 (off) .. window.length={w.length}")
+    if mcfg.temporal_basis and dcfg.prediction != "x0":
+        raise ConfigError(f"model.temporal_basis={mcfg.temporal_basis} confines the output to smooth windows, "
+                          f"which only an x0 prediction is; diffusion.prediction={dcfg.prediction}")
+    layout = Layout.for_window(w, joint_set)
+    model = build_model(mcfg, num_joints=joint_set.num_joints, num_actions=len(action_names), window=w.length,
+                        scene_res=(w.grid_res[1], w.grid_res[0], w.grid_res[2]), channels=layout.channels)
+    meta = {"joint_names": list(joint_set.names), "action_names": list(action_names),
+            "model_config": OmegaConf.to_container(OmegaConf.structured(mcfg)),
+            "diffusion_config": OmegaConf.to_container(OmegaConf.structured(dcfg))}
+    return model, GaussianDiffusion(dcfg), meta
+
+
+def batch_condition(batch: dict, device, tc, generator, train: bool) -> Condition:
+    cond = Condition(scene=batch["scene"].to(device, non_blocking=True) if "scene" in batch else None,
+                     actions=batch["actions"].to(device, non_blocking=True))
+    if train and (tc.cond_drop_scene > 0 or tc.cond_drop_actions > 0):
+        cond = drop_conditions(cond, tc.cond_drop_scene, tc.cond_drop_actions, generator)
+    return cond
+
+
+def known_mask_for_batch(cfg, shape, num_joints: int, device, generator) -> torch.Tensor:
+    B, L, D = shape
+    return sample_known_mask(B, L, num_joints, mask_config(cfg), generator, channels=D).to(device)
+
+
+def goal_predicted(cfg) -> bool:
+    """Whether the model of this config predicts its goal entries (`mask.predict_goal` and x0
+    prediction): then the loss covers them and samplers keep the prediction there."""
+    return predicts_goal(mask_config(cfg), str(cfg.diffusion.prediction))
+
+
+def fixed_known_mask(shape, transition: int, goal: bool, device) -> torch.Tensor:
+    """The sampling-time mask: the first `transition` frames and the last-frame pelvis x, z."""
+    m = torch.zeros(shape, dtype=torch.bool, device=device)
+    m[:, :transition] = True
+    if goal:
+        m[:, -1, [0, 2]] = True
+    return m
+
+
+@torch.no_grad()
+def sample_windows(model, diffusion, batch: dict, cfg, device, generator, steps: int = 25) -> torch.Tensor:
+    """Sample windows for a batch, pinning its first 2 frames and its goal (as sampling does)."""
+    x0 = batch["motion"].to(device)
+    cond = Condition(scene=batch["scene"].to(device) if "scene" in batch else None, actions=batch["actions"].to(device))
+    mask = fixed_known_mask(x0.shape, 2, True, device)
+    model.eval()
+    replace = replace_mask(mask, goal_predicted(cfg))
+    return sample(diffusion, model, x0.shape, cond, known=x0, known_mask=mask, sampler="ddim",
+                            steps=min(steps, diffusion.num_timesteps), generator=generator, replace_mask=replace)
+
+
+def _with_legacy_defaults(cfg):
+    """Checkpoints from before the representation key and goal prediction hold absolute joints
+    without stance channels and pinned goals: missing keys mean the old behaviour, not today's
+    defaults."""
+    from omegaconf import open_dict
+
+    with open_dict(cfg):
+        if "representation" not in cfg.window:
+            cfg.window.representation = "absolute"
+            cfg.window.contact_joints = []
+        if "predict_goal" not in cfg.mask:
+            cfg.mask.predict_goal = False
+    return cfg
+
+
+class LoadedModel:
+    """Everything a tool needs from a checkpoint alone: the EMA denoiser (eval mode), the
+    diffusion, normalisation statistics, joint set, action vocabulary and window config."""
+
+    precision = "fp32"                              # of the transformer layers (load_model)
+
+    def __init__(self, state: dict, device, use_ema: bool = True):
+        from motiongen.data.windows import NormStats
+        from motiongen.skeleton import joint_set_for
+        from omegaconf import OmegaConf as OC
+
+        cfg = _with_legacy_defaults(OC.create(state["config"]))
+        self.config = cfg
+        self.step = int(state["step"])
+        self.joint_set = joint_set_for(state["joint_names"])
+        self.action_names = list(state["action_names"])
+        self.stats = NormStats.from_state_dict(state["stats"])
+        self.window = window_config(cfg)
+        self.mask = mask_config(cfg)
+        self.layout = Layout.for_window(self.window, self.joint_set)
+        self.predict_goal = goal_predicted(cfg)
+        self.fps = float(state.get("fps") or 30.0)         # the training data's frame rate
+        model, self.diffusion, _ = build_from_config(cfg, self.joint_set, self.action_names)
+        try:
+            model.load_state_dict(state["ema" if use_ema else "model"])
+        except RuntimeError as e:
+            raise ConfigError(f"checkpoint weights do not match its own config: {str(e).splitlines()[0]}") from None
+        self.model = model.to(device).eval().requires_grad_(False)
+        self.device = torch.device(device)
+
+
+PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16}
+# precision=auto: bf16 from this many parameters in the denoiser's transformer layers. Measured
+# on 2 CPU cores, batch 1: the paper-size layers (12.6 M) take 11-17 ms per step in bf16 against
+# 17-29 ms in fp32 (DDIM-25 real-time factor 2.4-2.8 against 1.35-1.95 in one run,
+# benchmarks/sample.py); the quality recipe's (1.2 M) show no gain (2.1-3.1 ms either way).
+AUTO_BF16_PARAMS = 4_000_000
+
+
+def check_precision(precision: str) -> str:
+    if precision not in (*PRECISIONS, "auto"):
+        raise ConfigError(f"precision: expected one of {', '.join(PRECISIONS)}, auto, got {precision!r}")
+    return precision
+
+
+def resolve_precision(model, precision: str) -> str:
+    """fp32 | bf16 for a model and a `precision` key (fp32, bf16 or auto)."""
+    if check_precision(precision) != "auto":
+        return precision
+    return "bf16" if sum(p.numel() for p in model.blocks.parameters()) >= AUTO_BF16_PARAMS else "fp32"
+
+
+def load_model(path, device="cpu", use_ema: bool = True, precision: str = "fp32") -> LoadedModel:
+    """Rebuild a trained model from a checkpoint file (config and statistics inside it).
+    `precision`: the denoiser's transformer layers for sampling, fp32, bf16 (Denoiser.blocks_to)
+    or auto (resolve_precision); `loaded.precision` says which.
+    Anything wrong with the file or the device is a user error (MotiongenError)."""
+    from motiongen.errors import DataError, MotiongenError
+    from motiongen.loading.checkpoint import load_checkpoint
+
+    check_precision(precision)                      # a bad key fails before the file is read
+    device = str(device)
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(f"device={device}: CUDA is not available")
+    state = load_checkpoint(path, map_location="cpu")
+    missing = [k for k in ("config", "stats", "joint_names", "action_names", "ema", "model") if k not in state]
+    if missing:
+        raise MotiongenError(f"{path}: incompatible checkpoint, missing {missing}")
+    try:
+        loaded = LoadedModel(state, device, use_ema)
+    except MotiongenError:
+        raise
+    except Exception as e:  # a config or tensors this version cannot rebuild: the user's file
+        first = str(e).splitlines()[0] if str(e) else ""
+        raise DataError(path, None, f"unreadable or incompatible checkpoint ({type(e).__name__}: {first})") from None
+    loaded.precision = resolve_precision(loaded.model, precision)
+    if loaded.precision != "fp32":
+        loaded.model.blocks_to(PRECISIONS[loaded.precision])
+    return loaded
+
+
+def loss_channel_weights(tc, channels: int, device) -> torch.Tensor | None:
+    """(D,) per-channel loss weights: the pelvis (joint 0) channels get train.pelvis_loss_weight."""
+    if tc.pelvis_loss_weight == 1.0:
+        return None
+    w = torch.ones(channels, device=device)
+    w[:3] = tc.pelvis_loss_weight
+    return w
