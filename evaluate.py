@@ -2,11 +2,11 @@
 
 The TRUMANS static/dynamic protocol on the test scenes of the checkpoint's dataset, with the
 dataset's own motion as a reference row: report.json, report.md and plots/ in `out`
-(docs/evaluation.md). motiongen/configs/evaluate.yaml lists every key. Same as
+(docs/evaluation.md). `--help` lists every key (EvaluateConfig). Same as
 `motiongen evaluate ...`.
 """
 
 if __name__ == "__main__":
-    from motiongen.apps import run_app
+    from motiongen.commands.evaluate_command import main
 
-    run_app("evaluate")
+    main()

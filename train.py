@@ -6,6 +6,6 @@ Same as `motiongen train ...`.
 """
 
 if __name__ == "__main__":
-    from motiongen.apps import run_app
+    from motiongen.commands.train_command import main
 
-    run_app("train")
+    main()

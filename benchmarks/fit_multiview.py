@@ -1,4 +1,5 @@
-"""Benchmark multi-view SMPL-X fitting (seed 000 A1) on the test rig (one run; prints figures).
+"""Benchmark multi-view SMPL-X fitting (the multi-view capture paper, A1) on the test rig (one
+run; prints figures).
 
     python benchmarks/fit_multiview.py [--frames 1000] [--cameras 4] [--threads 1]
         [--outliers 0.1] [--noise-px 1.5] [--drop 0.05] [--compare-frames 0]
@@ -10,7 +11,7 @@ settings, torch limited to `--threads` threads. Prints frames/s overall and per 
 joint error against the truth (MPJPE, metres → cm).
 
 Accuracy (`--compare-frames N`, on an N-frame rig): the default against the alternatives the
-docs discuss — the robust 2D term against plain L2, the seed's mean-pose start against the IK
+docs discuss — the robust 2D term against plain L2, the paper's mean-pose start against the IK
 start, unsmoothed IK start, and other length units than the default 2 cm.
 """
 
@@ -85,7 +86,7 @@ def main() -> None:
                   f"max {e.max() * 100:.1f} cm")
         variants = {"default (unit 2 cm, rho 1 cm, GM, IK start smoothed 2 frames)": cfg,
                     "plain L2 2D term": replace(cfg, robust="l2"),
-                    "seed's start (mean pose, z = 0)": replace(cfg, init_pose="mean"),
+                    "the paper's start (mean pose, z = 0)": replace(cfg, init_pose="mean"),
                     "IK start unsmoothed": replace(cfg, init_smooth=0.0),
                     "after stage 2 (steps3 = 0)": replace(cfg, steps=cfg.steps[:2] + (0,)),
                     **{f"length unit {u * 100:g} cm": replace(cfg, length_unit=u) for u in (1.0, 0.05, 0.01, 0.001)}}

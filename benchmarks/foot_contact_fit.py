@@ -1,4 +1,4 @@
-"""What seed 002's foot-contact velocity term does to fitted real mocap (one run; prints a table).
+"""What LEMO's foot-contact velocity term does to fitted real mocap (one run; prints a table).
 
     python benchmarks/foot_contact_fit.py [--bvh-dir /usr/share/assimp/models/BVH] [--weights 0.01,0.1,1]
         [--steps 30] [--foot-vel-steps 100] [--mlp none|auto|PATH]
@@ -10,7 +10,7 @@
    without the term (one pass, as the CLI does; and two passes, as many iterations as the runs
    with the term: `max_steps`, then `foot_vel_steps` from the first pass's result), and
    with it (`w_foot_vel` = each weight) over the feet within 10 cm of the floor ("height", the
-   seed's heuristic) or over the importer's contact labels ("contact": where sensor or
+   LEMO's heuristic) or over the importer's contact labels ("contact": where sensor or
    annotated labels would go).
 3. Per fit: MPJPE to the mocap joints, the foot skating ratio and grounded slide of the toes
    (`motiongen.metrics`, as evaluate.py reports them), and the median speed of the foot

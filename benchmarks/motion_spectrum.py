@@ -68,7 +68,7 @@ def main(argv) -> None:
     from motiongen.importers.sources import open_dataset
     from motiongen.eval.pairs import ProtocolConfig
     from motiongen.eval.protocol import evaluate, pskl_sets
-    from motiongen.eval.report import _dataset_config, loop_overrides
+    from motiongen.eval.evaluate_config import dataset_config, loop_overrides
     from motiongen.sampling import SamplerSettings
     from motiongen.sampling.assemble import resample
     from motiongen.loading.build import load_model
@@ -80,7 +80,7 @@ def main(argv) -> None:
     # the same keys and checks as evaluate.py's loop group
     loop_over = loop_overrides(OmegaConf.from_dotlist([f"{k[5:]}={v}" for k, v in a.items() if k.startswith("loop.")]))
     loaded = load_model(a["ckpt"], "cpu", precision=a["precision"])
-    ds = open_dataset(_dataset_config(OmegaConf.create({}), loaded.config), verbose=False)
+    ds = open_dataset(dataset_config(None, loaded.config), verbose=False)
     setting, scenes = a["setting"], [int(s) for s in a["scenes"].split(",")]
     pc = ProtocolConfig(k=5, pairs=int(a["pairs"]), loop=loop_over)
     t0 = time.perf_counter()

@@ -30,6 +30,15 @@ import warnings
 import numpy as np
 import torch
 
+from motiongen.data.representation import Layout
+from motiongen.data.windows import NormStats, WindowConfig
+from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, MaskConfig
+from motiongen.diffusion.masks import predicts_goal
+from motiongen.loading.build import PRECISIONS, load_model, resolve_precision
+from motiongen.models import build_model, model_config
+from motiongen.sampling import Goal, LoopConfig, SamplerSettings, generate, plan_scene_route
+from motiongen.skeleton import BODY
+
 
 SETTINGS = [("ddpm", 100), ("ddim", 50), ("ddim", 25), ("ddim", 10)]
 
@@ -47,13 +56,6 @@ def _args(argv):
 def _random_loaded(preset: str, stride: int, length: int):
     """A paper-size denoiser with random weights in today's layout (absolute joints + stance
     channels, goal predicted): speed does not depend on training."""
-    from motiongen.data.representation import Layout
-    from motiongen.data.windows import NormStats, WindowConfig
-    from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, MaskConfig
-    from motiongen.diffusion.masks import predicts_goal
-    from motiongen.models import build_model, model_config
-    from motiongen.skeleton import BODY
-
     window, diffusion = WindowConfig(stride=stride, length=length), DiffusionConfig()
     mask = MaskConfig(max_transition=max(1, round(0.2 * 30 / stride)))      # 0.2 s pinned, as the recipes
     layout = Layout.for_window(window, BODY)
@@ -81,8 +83,6 @@ def _samplers(spec: str) -> list[tuple[str, int]]:
 
 
 def main(argv):
-    from motiongen.sampling import Goal, LoopConfig, SamplerSettings, generate
-
     a = _args(argv)
     torch.set_num_threads(int(a["threads"]))
     loaded = _random_loaded(a["preset"], int(a["stride"]), int(a["length"]))
@@ -91,13 +91,12 @@ def main(argv):
           f"{torch.get_num_threads()} threads, {episodes} episodes per run, "
           f"body projection + solve {'on' if project else 'off'}")
     # one untimed short run first: loading the body model and the first calls' set-up are not
-    # sampling speed (without it a lone DDIM-25 run read 1.12 where it reads ~2.4 after others)
+    # sampling speed (the first run reads far slower than the same run after others)
+    walk, _ = plan_scene_route((0, 0), [Goal([0, 100.0])], loaded.action_names, path="straight")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        generate(loaded, None, (0, 0), [Goal([0, 100.0])], path="straight", sampler=SamplerSettings("ddim", 2),
+        generate(loaded, route=walk, sampler=SamplerSettings("ddim", 2),
                  loop=LoopConfig(warmup=1, max_episodes=1, project=project))
-    from motiongen.loading.build import PRECISIONS, resolve_precision
-
     models = {}
     for prec in filter(None, a["precisions"].split(",")):
         if prec not in PRECISIONS:
@@ -115,7 +114,7 @@ def main(argv):
                 t = time.perf_counter()
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    m = generate(loaded, None, (0, 0), [Goal([0, 100.0])], path="straight", num_samples=batch,
+                    m = generate(loaded, route=walk, num_samples=batch,
                                  sampler=SamplerSettings(sampler, steps), generator=torch.Generator().manual_seed(0),
                                  loop=loop)
                 wall = time.perf_counter() - t
@@ -124,16 +123,15 @@ def main(argv):
     if not a["ckpt"]:
         print("quality: pass ckpt=PATH (a trained checkpoint) for goal-reaching errors")
         return
-    from motiongen.loading.build import load_model
-
     ld = load_model(a["ckpt"], precision="auto")
     goals = [Goal([1.5, 2.0]), Goal([-1.0, 4.0]), Goal([0.5, 6.0])]
+    route, _ = plan_scene_route((0, 0), goals, ld.action_names)
     print(f"quality: {a['ckpt']} (step {ld.step}), 3 goals over ~7 m in an empty scene, 4 samples")
     print(f"{'sampler':>10} {'reached':>8} {'pelvis m':>9} {'hips m':>7} {'RTF':>6}")
     for sampler, steps in SETTINGS:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            m = generate(ld, None, (0, 0), goals, num_samples=4, sampler=SamplerSettings(sampler, steps),
+            m = generate(ld, route=route, num_samples=4, sampler=SamplerSettings(sampler, steps),
                          generator=torch.Generator().manual_seed(0), loop=LoopConfig(max_episodes=40))
         r = np.isfinite(m.arrival_error)
         print(f"{sampler + '-' + str(steps):>10} {r.sum():>4}/{r.size:<3} {np.nanmean(m.arrival_error):9.3f} "

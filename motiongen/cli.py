@@ -1,13 +1,23 @@
-"""Shared CLI plumbing: user errors become one line on stderr and exit status 2."""
+"""Shared CLI plumbing: user errors become one line on stderr and exit status 2, whether they
+are a malformed override, a value of the wrong type or a bad input found later."""
 
 from __future__ import annotations
 
+import argparse
 import contextlib
+import dataclasses
 import functools
 import io
 import sys
+import typing
 from pathlib import Path
 from typing import Callable, TypeVar
+
+from hydra import compose, initialize_config_dir
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import ConfigCompositionException, HydraException, MissingConfigException, OverrideParseException
+from omegaconf import BooleanNode, DictConfig, FloatNode, IntegerNode, OmegaConf, StringNode
+from omegaconf.errors import ConfigKeyError, OmegaConfBaseException, ValidationError
 
 from motiongen.errors import ConfigError, MotiongenError
 
@@ -19,8 +29,6 @@ CONFIG_DIR = Path(__file__).resolve().parent / "configs"     # train / sample / 
 def _register_resolvers() -> None:
     """`${mg.default:${out},runs/...}` in the Hydra configs: the value, or the default when it
     is null. (oc.select falls back only for a *missing* key; `out: null` is present.)"""
-    from omegaconf import OmegaConf
-
     if not OmegaConf.has_resolver("mg.default"):
         OmegaConf.register_new_resolver("mg.default", lambda value, default: default if value is None else value)
 
@@ -61,29 +69,42 @@ def tool_main(run: Callable[[list[str]], object], report: Callable[[object], Non
     return main
 
 
+def _hydra_flags() -> argparse.ArgumentParser:
+    """The flags `hydra.main` takes besides overrides (`--cfg job`, `-m`, `--config-name NAME`
+    ...), so that the arguments left over are the overrides."""
+    parser = argparse.ArgumentParser(add_help=False)
+    parser.add_argument("overrides", nargs="*")
+    for flag in (["--help", "-h"], ["--hydra-help"], ["--version"], ["--resolve"], ["--run", "-r"],
+                 ["--multirun", "-m"], ["--shell-completion", "-sc"]):
+        parser.add_argument(*flag, action="store_true")
+    for flag in (["--package", "-p"], ["--config-path", "-cp"], ["--config-name", "-cn"],
+                 ["--config-dir", "-cd"], ["--experimental-rerun"]):
+        parser.add_argument(*flag)
+    parser.add_argument("--cfg", "-c", choices=["job", "hydra", "all"])
+    parser.add_argument("--info", "-i", nargs="?", const="all",
+                        choices=["all", "config", "defaults", "defaults-tree", "plugins", "searchpath"])
+    return parser
+
+
 def check_hydra_overrides(argv: list[str] | None = None, config_name: str | None = None,
                           config_dir=None) -> None:
-    """Exit 2 with one line if a command-line override of a Hydra script is malformed.
+    """Exit 2 with one line if a command-line override of a Hydra app is malformed.
 
     Hydra parses overrides inside `hydra.main`, before our function (and so
     `user_errors_exit_2`) runs, and reports a grammar error as several lines plus a
-    HYDRA_FULL_ERROR hint, exit 1. Call this first in `if __name__ == "__main__":`: it splits
-    argv with Hydra's own argument parser (so flags such as `--cfg job` or `-m` are left
-    alone) and parses each override with Hydra's own grammar.
+    HYDRA_FULL_ERROR hint, exit 1. Call this before `hydra.main`: it splits argv with the flags
+    Hydra takes (so `--cfg job` or `-m` are left alone) and parses each override with Hydra's
+    own grammar.
 
     With `config_name` and `config_dir` (motiongen/configs), the overrides are also composed
-    against the config once (about a tenth of a second), so an unknown key or a missing option of
-    a config group is one line and exit 2 too, instead of Hydra's message and exit 1. Sweeps
-    (`-m`, `a=1,2`) are left to Hydra.
+    against the config once (about a tenth of a second), so an unknown key, a value of the wrong
+    type or a missing option of a config group is one line and exit 2 too, instead of Hydra's
+    message and exit 1. Sweeps (`-m`, `a=1,2`) are left to Hydra.
     """
-    from hydra._internal.utils import get_args_parser
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-    from hydra.errors import OverrideParseException
-
     argv = sys.argv[1:] if argv is None else argv
     try:
         with contextlib.redirect_stderr(io.StringIO()):
-            args, _ = get_args_parser().parse_known_args(argv)
+            args, _ = _hydra_flags().parse_known_args(argv)
     except SystemExit:
         return                      # a bad flag: Hydra's own usage message says it
     parser = OverridesParser.create()
@@ -105,11 +126,6 @@ def check_hydra_overrides(argv: list[str] | None = None, config_name: str | None
 
 
 def _check_composes(overrides: list[str], config_name: str, config_dir) -> None:
-    from pathlib import Path
-
-    from hydra import compose, initialize_config_dir
-    from hydra.errors import ConfigCompositionException, MissingConfigException
-
     try:
         with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base="1.3"):
             compose(config_name, overrides=overrides, return_hydra_config=True)
@@ -121,6 +137,9 @@ def _check_composes(overrides: list[str], config_name: str, config_dir) -> None:
               file=sys.stderr, flush=True)
         sys.exit(2)
     except ConfigCompositionException as e:
+        if isinstance(e.__cause__, ValidationError):
+            print(f"error: {value_error(e.__cause__)}", file=sys.stderr, flush=True)
+            sys.exit(2)
         lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
         msg = "; ".join(lines[:2]) if lines else "cannot apply the overrides"
         if msg.startswith("Could not override"):
@@ -130,30 +149,59 @@ def _check_composes(overrides: list[str], config_name: str, config_dir) -> None:
 
 
 # The small tools parse `key=value` arguments with Hydra's own override grammar and check each
-# value with OmegaConf's typed nodes, as train.py / sample.py / evaluate.py do through Hydra, so
-# quoting, lists, `+key` and type errors behave the same at every entry point.
+# value with OmegaConf's typed nodes, as the Hydra apps' structured configs do, so quoting,
+# lists, `+key` and type errors behave the same at every entry point.
 _KIND_WORDS = {int: "an integer", float: "a number", bool: "true or false", list: "a list [a,b,...]", str: "a value"}
+_NODES = {int: IntegerNode, float: FloatNode, bool: BooleanNode, str: StringNode}
+
+
+def _field_kind(e: OmegaConfBaseException) -> type | None:
+    """int, float, bool or str: the type of the dataclass field a refused value was meant for
+    (None for a list item or a field of another type)."""
+    owner = OmegaConf.get_type(e.parent_node) if e.parent_node is not None else None
+    if not (dataclasses.is_dataclass(owner) and isinstance(e.key, str)):
+        return None
+    hint = typing.get_type_hints(owner).get(e.key)
+    kinds = [k for k in typing.get_args(hint) if k is not type(None)] or [hint]
+    return kinds[0] if len(kinds) == 1 and kinds[0] in _NODES else None
+
+
+def value_error(e: OmegaConfBaseException) -> str:
+    """One line for a value OmegaConf refused for a typed field: `key: expected <kind>, got <value>`
+    (OmegaConf's own first line where the field is not a number, a flag or a string)."""
+    kind = _field_kind(e)
+    if kind is None:
+        return f"{e.full_key}: {str(e.msg).splitlines()[0]}"
+    return f"{e.full_key}: expected {_KIND_WORDS[kind]}, got {e.value!r}"
+
+
+def typed_config(schema, values, prefix: str = ""):
+    """An instance of dataclass `schema` from a mapping of its keys (a dotlist's DictConfig, a
+    dict), each value converted or refused as a Hydra app's structured config does; an unknown
+    key or a refused value is a ConfigError naming `prefix` + the key."""
+    try:
+        return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), values))
+    except ConfigKeyError as e:
+        keys = ", ".join(schema.__dataclass_fields__)
+        raise ConfigError(f"{prefix}{e.key}: not a key here ({keys})") from None
+    except ValidationError as e:
+        raise ConfigError(prefix + value_error(e)) from None
 
 
 def _typed(kind, value):
     """value checked and converted as OmegaConf does for a config field of this type."""
-    from omegaconf import BooleanNode, FloatNode, IntegerNode, StringNode
-
     if value is None:
         return None
     if kind is list:
         if not isinstance(value, list):
             raise ValueError(value)
         return [str(v) for v in value]
-    node = {int: IntegerNode, float: FloatNode, bool: BooleanNode, str: StringNode}[kind]
-    return node(value=value)._value()
+    return DictConfig({"value": _NODES[kind](value=value)}).value
 
 
 def _quoted_list(parser, key: str, value: str):
     """A list whose items hold characters the grammar reserves (`thresholds=[right_foot=700]`):
     the same items quoted, or None when that does not parse either."""
-    from hydra.errors import HydraException
-
     v = value.strip()
     if not (v.startswith("[") and v.endswith("]")) or any(c in v[1:-1] for c in "[]'\"\\"):
         return None
@@ -188,10 +236,6 @@ def parse_key_values(argv: list[str], spec: dict[str, tuple], required: tuple[st
     types as OmegaConf does for the Hydra scripts. ``--help`` / ``-h`` prints `tool_help` and
     exits 0. Unknown keys, bad values and missing required keys raise ConfigError (exit 2 in CLIs).
     """
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-    from hydra.errors import HydraException
-    from omegaconf.errors import OmegaConfBaseException
-
     if any(a in ("--help", "-h") for a in argv):
         print(tool_help(spec, usage, doc, required))
         sys.exit(0)

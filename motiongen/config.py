@@ -1,17 +1,26 @@
 """Typed configs, registered with Hydra's ConfigStore: every default lives once, in a dataclass.
 
-Groups (see docs/config.md): `model` (tiny | paper | reference, from motiongen.models.PRESETS),
-`diffusion` (default | paper), `data` (synthetic | small | trumans | dataset), `window`,
-`train` (default), plus `experiment` presets in configs/experiment/*.yaml.
+Groups of `train` (see docs/config.md): `model` (tiny | paper | reference, from
+motiongen.models.PRESETS), `diffusion` (default | paper), `data` (synthetic | small | trumans |
+dataset), `window`, `mask`, `train` (default), plus `experiment` presets in
+configs/experiment/*.yaml. The keys of the other apps: `sample_schema` (SampleConfig),
+`evaluate_schema` (EvaluateConfig, which takes the `data` group too) and `train_mlp`
+(TrainMLPConfig); configs/<app>.yaml name their schema first in the defaults list and add
+Hydra's own settings.
 """
 
 from __future__ import annotations
 
 from hydra.core.config_store import ConfigStore
 
+from motiongen.body.train_mlp import TrainMLPConfig
+from motiongen.data.windows import WindowConfig
+from motiongen.diffusion import DiffusionConfig, MaskConfig
+from motiongen.eval.evaluate_config import EvaluateConfig
 from motiongen.importers.sources import DataConfig
-from motiongen.data.windows import WindowNode
-from motiongen.training.settings import TrainConfig
+from motiongen.models import PRESETS
+from motiongen.sampling.sample_config import SampleConfig
+from motiongen.training.train_config import TrainConfig
 
 
 _registered = False
@@ -22,9 +31,6 @@ def register_configs() -> None:
     global _registered
     if _registered:
         return
-    from motiongen.diffusion import DiffusionConfig, MaskConfig
-    from motiongen.models import PRESETS
-
     # paper: linear β 1e-4 → 0.02 over 100 steps, ε-prediction (supplement A.2); samplers start
     # from the marginal that schedule really ends at. default: cosine (ends at pure noise), x0.
     diffusion_presets = {"default": DiffusionConfig(),
@@ -41,8 +47,11 @@ def register_configs() -> None:
     cs.store(group="data", name="small", node=DataConfig(source="synthetic", size="small"))
     cs.store(group="data", name="trumans", node=DataConfig(source="trumans"))
     cs.store(group="data", name="dataset", node=DataConfig(source="dataset"))
-    cs.store(group="window", name="default", node=WindowNode())
+    cs.store(group="window", name="default", node=WindowConfig())
     # The public code's features: absolute joints, no stance channels.
-    cs.store(group="window", name="reference", node=WindowNode(contact_joints=[]))
+    cs.store(group="window", name="reference", node=WindowConfig(contact_joints=()))
     cs.store(group="train", name="default", node=TrainConfig())
+    cs.store(name="sample_schema", node=SampleConfig)
+    cs.store(name="evaluate_schema", node=EvaluateConfig)
+    cs.store(name="train_mlp", node=TrainMLPConfig)
     _registered = True

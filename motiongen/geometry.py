@@ -8,14 +8,20 @@ Functions accept numpy arrays or torch tensors and return the same kind.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
-import torch
+from scipy.spatial.transform import Rotation
 
 from motiongen.skeleton import LEFT_HIP, PELVIS, RIGHT_HIP
 
 
 def _lib(a):
-    return torch if isinstance(a, torch.Tensor) else np
+    """The array library of `a`: torch for a tensor, else numpy. torch is looked up, not imported:
+    a tensor means it is loaded already, and numpy-only callers (the synthetic generator) need
+    not pay its ~2 s import."""
+    torch = sys.modules.get("torch")
+    return torch if torch is not None and isinstance(a, torch.Tensor) else np
 
 
 def yaw_matrix(yaw):
@@ -35,7 +41,7 @@ def facing_yaw(joints):
     xp = _lib(joints)
     across = joints[..., LEFT_HIP, :] - joints[..., RIGHT_HIP, :]
     # forward = across × (0,1,0) = (-across_z, 0, across_x)
-    return xp.arctan2(-across[..., 2], across[..., 0]) if xp is np else torch.atan2(-across[..., 2], across[..., 0])
+    return xp.arctan2(-across[..., 2], across[..., 0]) if xp is np else xp.atan2(-across[..., 2], across[..., 0])
 
 
 def local_to_world(yaw, origin_xz):
@@ -46,7 +52,7 @@ def local_to_world(yaw, origin_xz):
     if xp is np:
         T = np.zeros(shape + (4, 4), dtype=R.dtype)
     else:
-        T = torch.zeros(shape + (4, 4), dtype=R.dtype, device=R.device)
+        T = xp.zeros(shape + (4, 4), dtype=R.dtype, device=R.device)
     T[..., :3, :3] = R
     T[..., 0, 3] = origin_xz[..., 0]
     T[..., 2, 3] = origin_xz[..., 1]
@@ -82,8 +88,6 @@ def canonical_frame(joints):
 def up_rotation(up: str) -> np.ndarray:
     """(3, 3) rotation taking the signed axis `up` ('+z', '-x', '+y', ...) onto +y by a 90 or
     180 degree turn, exact (entries 0, ±1). z-up becomes (x, y, z) -> (x, z, -y)."""
-    from scipy.spatial.transform import Rotation
-
     e = np.zeros(3)
     e["xyz".index(up[1])] = 1.0 if up[0] == "+" else -1.0
     target = np.array([0.0, 1.0, 0.0])

@@ -1,11 +1,11 @@
 """A multi-view capture rig with a known answer, for the multi-view fitting tests and benchmark.
 
 The procedural body (`load_body_model()`) performs a known motion: a few frames of A-pose
-(the seed's stage-1 "simple pose"), blending into a `sample_motion` sequence. 3–6 virtual
-OpenCV cameras stand on a circle around it looking at its mean pelvis; its 22 joints are
-projected with Gaussian pixel noise, some detections dropped (confidence 0) and some
-replaced by outliers (displaced 60–300 px in a random direction with ordinary confidence, as
-a detector's confident mistakes are).
+(the multi-view capture paper's stage-1 "simple pose"), blending into a `sample_motion`
+sequence. 3–6 virtual OpenCV cameras stand on a circle around it looking at its mean pelvis;
+its 22 joints are projected with Gaussian pixel noise, some detections dropped (confidence 0)
+and some replaced by outliers (displaced 60–300 px in a random direction with ordinary
+confidence, as a detector's confident mistakes are).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The fitting CLI: `motiongen fit input=... out=...` (`motiongen/body/fit_cli.py`)."""
+"""The fitting CLI: `motiongen fit input=... out=...` (`motiongen/commands/fit_command.py`)."""
 
 import json
 import os
@@ -13,7 +13,7 @@ import torch
 from motiongen.body.model import BodyModel
 from motiongen.body.random_motion import sample_motion
 from motiongen.body.procedural import ensure_procedural_model
-from motiongen.body.fit_cli import main
+from motiongen.commands.fit_command import main
 from tests.helpers import user_error
 
 REPO = Path(__file__).resolve().parents[1]
@@ -95,7 +95,7 @@ def test_fit_cli_user_errors(tmp_path, capsys, joints, model_path):
 
 def test_fit_cli_subprocess_exit_code(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    r = subprocess.run([sys.executable, "-m", "motiongen.body.fit_cli", f"input={tmp_path / 'nope.npz'}", f"out={tmp_path}"],
+    r = subprocess.run([sys.executable, "-m", "motiongen.commands.fit_command", f"input={tmp_path / 'nope.npz'}", f"out={tmp_path}"],
                        capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120)
     assert r.returncode == 2 and r.stderr.startswith("error: ") and "Traceback" not in r.stderr
 
@@ -103,7 +103,7 @@ def test_fit_cli_subprocess_exit_code(tmp_path):
 def test_train_mlp_entry_point(tmp_path, model_path):
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     out = tmp_path / "run"
-    r = subprocess.run([sys.executable, "-m", "motiongen.body.train_mlp", f"out={out}", "steps=4", "batch_size=16",
+    r = subprocess.run([sys.executable, "-m", "motiongen.commands.train_body_mlp_command", f"out={out}", "steps=4", "batch_size=16",
                         "log_every=2", "mlp.width=32", "data.num_sequences=2", "data.seq_frames=20",
                         f"body.model_path={model_path}", "threads=1", f"hydra.run.dir={tmp_path / 'hydra'}"],
                        capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
@@ -111,7 +111,7 @@ def test_train_mlp_entry_point(tmp_path, model_path):
     ckpt = torch.load(out / "mlp.pt", weights_only=True)
     assert ckpt["train_config"]["mlp"]["width"] == 32 and ckpt["mlp"]["width"] == 32
     assert any((out / "tb").iterdir())
-    bad = subprocess.run([sys.executable, "-m", "motiongen.body.train_mlp", "steps=0", f"out={out}",
+    bad = subprocess.run([sys.executable, "-m", "motiongen.commands.train_body_mlp_command", "steps=0", f"out={out}",
                           f"body.model_path={model_path}", f"hydra.run.dir={tmp_path / 'hydra'}"],
                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
     assert bad.returncode == 2 and "error: " in bad.stderr and "Traceback" not in bad.stderr

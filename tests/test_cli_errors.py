@@ -66,3 +66,16 @@ def test_unknown_key_and_missing_option_are_one_line_and_exit_2(script, tmp_path
         assert r.returncode == 2, r.stderr
         assert r.stderr.strip().splitlines() == [
             "error: Could not find 'model/nonexist'; available: paper, reference, tiny"], r.stderr
+
+
+@pytest.mark.parametrize("script,override,line", [
+    ("sample.py", "steps=many", "error: steps: expected an integer, got 'many'"),
+    ("evaluate.py", "loop.project=maybe", "error: loop.project: expected true or false, got 'maybe'"),
+    ("train.py", "train.lr=fast", "error: train.lr: expected a number, got 'fast'"),
+])
+def test_value_of_the_wrong_type_is_one_line_and_exit_2(script, override, line, tmp_path):
+    """The structured configs type every key: OmegaConf refuses the value as the command line is
+    read, before anything runs."""
+    r = run_script(script, override, f"hydra.run.dir={tmp_path / 'run'}")
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [line], r.stderr
+    assert not (tmp_path / "run").exists()

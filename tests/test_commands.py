@@ -104,3 +104,16 @@ def test_hydra_apps_through_the_command(name, tmp_path, capsys, monkeypatch):
 def test_a_hydra_app_runs_through_the_console_script(tmp_path):
     r = motiongen("sample", f"ckpt={tmp_path / 'none.pt'}", f"out={tmp_path / 'o'}")
     assert r.returncode == 2 and "checkpoint file does not exist" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_every_command_is_a_module_with_main_argv():
+    """One shape for every entry point: `main(argv=None)`; a module that is only a command line
+    is motiongen/commands/<command>_command.py."""
+    import importlib
+    import inspect
+
+    for name, (module, _) in COMMANDS.items():
+        main_ = importlib.import_module(module).main
+        assert list(inspect.signature(main_).parameters) == ["argv"], name
+        if module.startswith("motiongen.commands."):
+            assert module == f"motiongen.commands.{name.replace('-', '_')}_command", name

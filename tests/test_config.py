@@ -56,3 +56,51 @@ def test_unknown_key_is_rejected():
 def test_sample_and_evaluate_configs_compose():
     assert _compose("sample", ["ckpt=x.pt"]).sampler == "ddim"
     assert _compose("evaluate", ["ckpt=x.pt"]).k == 5
+
+
+def test_app_keys_come_from_the_dataclasses():
+    """sample and evaluate are built from the dataclasses the code uses (each default written
+    once): their values are typed, and `to_object` gives the dataclasses back."""
+    from dataclasses import asdict
+
+    from omegaconf import OmegaConf
+
+    from motiongen.eval.evaluate_config import EvaluateConfig, protocol_config
+    from motiongen.eval.pairs import ProtocolConfig
+    from motiongen.sampling.settings import LoopConfig, SamplerSettings
+
+    sample = OmegaConf.to_object(_compose("sample", ["ckpt=x.pt", "loop.smooth=1", "steps=8"]))
+    lists = lambda d: {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(d).items()}   # noqa: E731
+    assert lists(sample.loop) == lists(LoopConfig(smooth=1.0)) and isinstance(sample.loop.smooth, float)
+    assert SamplerSettings.of(sample) == SamplerSettings(steps=8)
+    ev = OmegaConf.to_object(_compose("evaluate", ["ckpt=x.pt", "data=small", "loop.smooth=0"]))
+    assert isinstance(ev, EvaluateConfig) and ev.data.size == "small" and ev.steps == 10
+    pc = protocol_config(ev)
+    assert asdict(pc) == {**asdict(ProtocolConfig()), "static_actions": ["sit", "lie down"], "loop": {"smooth": 0.0}}
+
+
+def test_window_group_is_the_window_config():
+    from omegaconf import OmegaConf
+
+    from motiongen.data.windows import WindowConfig
+
+    reference = window_config(_compose(overrides=["window=reference"]))
+    assert reference == WindowConfig(contact_joints=(), length=24, stride=2)      # the demo's length and stride
+    stored = OmegaConf.create({"window": {"grid_res": [16, 16, 16]}})              # as a checkpoint holds it
+    assert window_config(stored).grid_res == (16, 16, 16)
+
+
+def test_bad_values_are_config_errors_naming_the_key():
+    from omegaconf import OmegaConf
+
+    from motiongen.errors import ConfigError
+    from motiongen.eval.evaluate_config import loop_overrides
+
+    assert loop_overrides({"project": "false", "smooth": 2}) == {"project": False, "smooth": 2.0}
+    for values, message in (({"smooth": -1}, "loop.smooth: expected a number >= 0, got -1"),
+                            ({"foot_lock": "maybe"}, "loop.foot_lock: expected true or false, got 'maybe'"),
+                            ({"warmup": 3}, "loop.warmup: not a key here")):
+        with pytest.raises(ConfigError, match=message):
+            loop_overrides(values)
+    with pytest.raises(ConfigError, match="steps must be >= 1, got 0"):      # checked once, in SamplerSettings
+        OmegaConf.to_object(_compose("sample", ["steps=0"]))

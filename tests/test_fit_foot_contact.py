@@ -1,4 +1,4 @@
-"""Seed 002's foot-contact velocity term in joints -> SMPL-X fitting: closed-form values, what it
+"""LEMO's foot-contact velocity term in joints -> SMPL-X fitting: closed-form values, what it
 does to a sliding foot, and the fit CLI's keys."""
 
 import json
@@ -12,11 +12,11 @@ from motiongen.body.foot_velocity import foot_velocity_loss, foot_velocity_mask
 from motiongen.body.model import load_body_model
 from motiongen.body.random_motion import sample_motion
 from motiongen.errors import ConfigError
-from motiongen.body.fit_cli import main
+from motiongen.commands.fit_command import main
 from motiongen.skeleton import FOOT_JOINTS
 from tests.helpers import user_error
 
-A = 0.10                                              # the seed's a, m/s
+A = 0.10                                              # LEMO's a, m/s
 LEFT = FOOT_JOINTS[:2]                                # left ankle, left toe
 
 

@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def _checkpoint(path: Path) -> Path:
     """A checkpoint of a random-init very small model in train.py's format (the CLI's
     mechanics do not depend on training; tests/test_sampling.py covers the loop)."""
-    from motiongen.data.windows import WindowNode
+    from motiongen.data.windows import WindowConfig
     from motiongen.importers.sources import DataConfig
     from motiongen.diffusion import DiffusionConfig, MaskConfig
     from motiongen.models import build_model, model_config
@@ -32,7 +32,7 @@ def _checkpoint(path: Path) -> Path:
     center[1:66:3] = 0.9
     half = np.full(D, 1.5, np.float32)
     half[66:] = 1.0
-    cfg = {"model": asdict(mcfg), "diffusion": asdict(DiffusionConfig()), "window": asdict(WindowNode()),
+    cfg = {"model": asdict(mcfg), "diffusion": asdict(DiffusionConfig()), "window": asdict(WindowConfig()),
            "mask": asdict(MaskConfig()), "data": asdict(DataConfig(source="dataset", root=str(path.parent)))}
     state = {"format": "motiongen-checkpoint", "config": cfg, "step": 0, "joint_names": list(BODY.names),
              "action_names": ["walk", "sit"], "stats": {"center": center.tolist(), "half_range": half.tolist()},
@@ -82,7 +82,7 @@ def test_end_to_end_writes_all_outputs(files, tmp_path):
         assert z["actions"].shape == z["joints"].shape[:2] and z["path"].shape[1] == 2
         assert z["episode_starts"][0] == 0 and z["arrival_error"].shape == (2, 2)
     assert "real-time factor" in stdout and "goal 1" in stdout
-    from motiongen.body.fit_cli import load_input  # the fitting tool reads it
+    from motiongen.commands.fit_command import load_input  # the fitting tool reads it
 
     joints, fps, _ = load_input({"input": str(out / "motion.npz")})
     assert joints.shape[0] == 2 and fps == 30.0
@@ -120,7 +120,7 @@ def test_bad_inputs_exit_2_with_one_line(files, tmp_path):
 
 def test_obstacle_faces_hide_shared_sides():
     """Two adjacent equal columns expose 2 tops + 6 sides (the shared pair is hidden)."""
-    from motiongen.export.video import obstacle_faces
+    from motiongen.export.obstacles import obstacle_faces
     cols = np.array([[0.1, 0.1, 1.0], [0.3, 0.1, 1.0]])
     corners, normals, shade = obstacle_faces(cols, 0.2)
     assert corners.shape == (8, 4, 3) and (normals[:, 1] == 1).sum() == 2
@@ -149,6 +149,7 @@ def test_checkpoints_from_before_the_body_changes_load_as_they_were_trained(tmp_
     ld = load_model(tmp_path / "old.pt")
     assert ld.layout.channels == 66 and ld.layout.representation == "absolute" and not ld.predict_goal
     assert ld.fps == 30.0                                                      # no fps recorded: the old assumption
+    assert ld.model_fps == 10.0                                                # the data rate: 30 fps, every 3rd frame
     new = load_model(path)
     assert new.layout.channels == 70 and new.predict_goal
 

@@ -14,8 +14,10 @@ from motiongen.data.representation import Layout
 from motiongen.data.windows import NormStats, WindowConfig
 from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, MaskConfig
 from motiongen.errors import ConfigError
-from motiongen.sampling import Goal, LoopConfig, SamplerSettings, generate
-from motiongen.skeleton import BODY
+from motiongen.metrics import bone_consistency, bone_lengths
+from motiongen.sampling import Goal, LoopConfig, SamplerSettings, generate, plan_scene_route
+from motiongen.sampling.assemble import blend_seam
+from motiongen.skeleton import BODY, BODY_PARENTS
 from tests.helpers import REST
 
 J, L = 22, 16
@@ -57,6 +59,12 @@ def _loaded(model_cls=None):
                                  mask=MaskConfig(max_transition=2), device=torch.device("cpu"))
 
 
+def _generate(loaded, goals, path="astar", subgoal_spacing=0.6, **kw):
+    """generate from (0, 0) through `goals` on an empty floor, the route planned first."""
+    route, fmap = plan_scene_route((0.0, 0.0), goals, loaded.action_names, path=path, subgoal_spacing=subgoal_spacing)
+    return generate(loaded, route=route, walkable=fmap, **kw)
+
+
 def _seam_ratio(motion):
     disp = np.linalg.norm(np.diff(motion.joints, axis=1), axis=-1).max(-1)          # (S, T-1)
     seams = motion.episode_starts[1:]
@@ -68,8 +76,8 @@ def _seam_ratio(motion):
 
 def test_reaches_goals_in_empty_scene_with_continuous_seams():
     goals = [Goal([1.5, 2.0]), Goal([-1.0, 4.0]), Goal([0.0, 6.0], "sit", 1.0)]
-    m = generate(_loaded(), None, (0.0, 0.0), goals, num_samples=2, generator=torch.Generator().manual_seed(0),
-                 sampler=SamplerSettings("ddim", 5), loop=LoopConfig(tolerance=0.2))
+    m = _generate(_loaded(), goals, num_samples=2, generator=torch.Generator().manual_seed(0),
+                  sampler=SamplerSettings("ddim", 5), loop=LoopConfig(tolerance=0.2))
     assert m.completed
     assert m.joints.shape[0] == 2 and m.joints.shape[2:] == (J, 3) and m.fps == 30.0
     assert np.all(m.arrival_error < 0.2) and np.all(m.arrival_error_body < 0.2)
@@ -84,8 +92,8 @@ def test_reaches_goals_in_empty_scene_with_continuous_seams():
 
 
 def test_pinned_transition_frames_equal_previous_frames():
-    m = generate(_loaded(), None, (0.0, 0.0), [Goal([0.5, 3.0])], generator=torch.Generator().manual_seed(1),
-                 sampler=SamplerSettings("ddpm", 10, eta=1.0))
+    m = _generate(_loaded(), [Goal([0.5, 3.0])], generator=torch.Generator().manual_seed(1),
+                  sampler=SamplerSettings("ddpm", 10, eta=1.0))
     eps = m.episodes
     assert len(eps) >= 3
     for prev, cur in zip(eps[:-1], eps[1:]):
@@ -99,26 +107,26 @@ def test_pinned_transition_frames_equal_previous_frames():
 
 def test_far_targets_are_clamped_and_lookahead_off_uses_every_subgoal():
     ld = _loaded()
-    m = generate(ld, None, (0.0, 0.0), [Goal([0.0, 4.0])], path="straight", subgoal_spacing=3.0,
-                 generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 3))
+    m = _generate(ld, [Goal([0.0, 4.0])], path="straight", subgoal_spacing=3.0,
+                  generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 3))
     walk = [e for e in m.episodes if e.kind == "walk"]
     reach = 0.7 * 2.0
     for e in walk:
         frame0 = e.window[0, e.transition - 1, 0, [0, 2]]
         assert np.linalg.norm(e.window[0, -1, 0, [0, 2]] - frame0) <= reach + 0.3
-    m2 = generate(ld, None, (0.0, 0.0), [Goal([0.0, 2.4])], subgoal_spacing=0.6,
-                  generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 3),
-                  loop=LoopConfig(lookahead=False))
+    m2 = _generate(ld, [Goal([0.0, 2.4])], subgoal_spacing=0.6,
+                   generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 3),
+                   loop=LoopConfig(lookahead=False))
     assert sum(e.kind == "walk" for e in m2.episodes) >= 4
 
 
 def test_max_episodes_warns_and_unknown_action_errors():
     with pytest.warns(UserWarning, match="stopped after max_episodes=2"):
-        m = generate(_loaded(), None, (0.0, 0.0), [Goal([0.0, 8.0])], sampler=SamplerSettings("ddim", 2),
-                     loop=LoopConfig(max_episodes=2))
+        m = _generate(_loaded(), [Goal([0.0, 8.0])], sampler=SamplerSettings("ddim", 2),
+                      loop=LoopConfig(max_episodes=2))
     assert not m.completed and np.isnan(m.arrival_error).all()
     with pytest.raises(ConfigError, match="knows: walk, sit"):
-        generate(_loaded(), None, (0.0, 0.0), [Goal([0.0, 1.0], "dance")])
+        _generate(_loaded(), [Goal([0.0, 1.0], "dance")])
 
 
 class Garbage(nn.Module):
@@ -137,13 +145,10 @@ class Garbage(nn.Module):
 
 
 def test_one_body_across_seams_whatever_the_network_predicts():
-    from motiongen.metrics import bone_consistency, bone_lengths
-    from motiongen.skeleton import BODY_PARENTS
-
     with pytest.warns(UserWarning, match="max_episodes"):
-        m = generate(_loaded(Garbage), None, (0.0, 0.0), [Goal([0.0, 3.0])], num_samples=2,
-                     generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 3),
-                     loop=LoopConfig(max_episodes=4))
+        m = _generate(_loaded(Garbage), [Goal([0.0, 3.0])], num_samples=2,
+                      generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 3),
+                      loop=LoopConfig(max_episodes=4))
     for s in range(2):
         raw = bone_consistency(m.joints_raw[s], BODY_PARENTS)
         assert raw.cv_median > 0.2                                        # the network's bones are garbage ...
@@ -157,8 +162,6 @@ def test_one_body_across_seams_whatever_the_network_predicts():
 
 
 def test_blend_seam_continues_the_pinned_velocity():
-    from motiongen.sampling.assemble import blend_seam
-
     # pinned frames 0..3 move at v per frame; the network's frames 4.. also move at v but start
     # d off the continuation: a velocity jump δ = d at the seam.
     k, n, L = 4, 6, 16

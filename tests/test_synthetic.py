@@ -7,7 +7,7 @@ import pytest
 
 from motiongen.data.format import DEFAULT_SPLITS, MotionDataset
 from motiongen.synthetic import ACTIONS, SIZES, _scene_job, generate
-from motiongen.synthetic.__main__ import main as cli_main
+from motiongen.commands.synthetic_command import main as cli_main
 from motiongen.errors import ConfigError, DataError
 from motiongen.skeleton import BODY, FOOT_JOINTS, HAND_JOINTS
 

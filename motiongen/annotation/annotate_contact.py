@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from motiongen.body.fit import fit_joints
 from motiongen.body.model import BodyModel, load_body_model
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.annotation.vertex_contact import (TARGET_NAMES, BodySurface, ContactConfig, SceneTargets,
@@ -30,7 +31,7 @@ from motiongen.data.contact_labels import VertexContactWriter
 from motiongen.annotation.contact_stats import penetration_table, plot_penetration, write_table
 from motiongen.scene.distance_field import MeshField, PlaneField, surface_distance
 from motiongen.data.format import SMPLX_FIELDS, MotionDataset, Sequence
-from motiongen.scene.loading import MESH_SUFFIXES
+from motiongen.scene.loading import MESH_SUFFIXES, load_mesh_file
 from motiongen.errors import ConfigError, DataError
 from motiongen.skeleton import NUM_BODY_JOINTS
 
@@ -77,7 +78,6 @@ class SurfaceBank:
                 name = self.ds.objects.get(oid, {}).get("name", str(oid))
                 for suffix in OBJECT_SUFFIXES:
                     if (self.mesh_dir / f"{name}{suffix}").is_file():
-                        from motiongen.scene.loading import load_mesh_file
                         mesh = load_mesh_file(self.mesh_dir / f"{name}{suffix}")
                         break
             self._meshes[oid] = mesh
@@ -141,8 +141,6 @@ def sequence_body(ds: MotionDataset, seq: Sequence, bm: BodyModel, fit_mlp=None)
     s, e = seq.start, seq.end
     if ds.smplx is not None:
         return {k: np.asarray(ds.smplx[k][s:e]) for k in SMPLX_FIELDS}, "dataset"
-    from motiongen.body.fit import fit_joints
-
     fit = fit_joints(np.asarray(ds.joints[s:e, :NUM_BODY_JOINTS]), bm, mlp=fit_mlp)
     betas = np.zeros(SMPLX_FIELDS["betas"], np.float32)
     betas[:len(fit.betas)] = fit.betas

@@ -177,6 +177,20 @@ def augment_sequence(ctx: AugmentContext, seq: Sequence, edit: edits.ObjectEdit,
                              new_params, labels, rt.changed, stats)
 
 
+@dataclass
+class _Output:
+    """The dataset of augmented sequences being written, and what `augment_dataset` records of it."""
+
+    writer: DatasetWriter
+    next_id: int                                        # id of the next edited object
+    vc_writer: VertexContactWriter | None = None
+    skipped: dict[str, int] = field(default_factory=dict)   # reason -> count
+    records: list[dict] = field(default_factory=list)       # one per augmented sequence (meta.json)
+    stats: list[dict] = field(default_factory=list)         # AugmentedSequence.stats of each
+    used_objects: set = field(default_factory=set)          # source objects the sequences hold
+    used_scenes: set = field(default_factory=set)
+
+
 def augment_dataset(root: str | Path, out: str | Path, cfg: AugmentConfig = AugmentConfig(),
                     body_model: BodyModel | str | None = None, object_meshes: str | Path | None = None,
                     overwrite: bool = False, progress: bool = True) -> AugmentResult:
@@ -184,6 +198,33 @@ def augment_dataset(root: str | Path, out: str | Path, cfg: AugmentConfig = Augm
     _check(cfg)
     log = (lambda m: print(m, file=sys.stderr, flush=True)) if progress else (lambda m: None)
     t0 = time.perf_counter()
+    ctx = _context(root, out, cfg, body_model, object_meshes, overwrite, progress, log)
+    ds, cfg = ctx.ds, ctx.cfg
+    seqs = ds.split_sequences(cfg.split)
+    writer = DatasetWriter(out, ds.joint_set, ds.action_names, ds.fps, ds.meta["num_object_slots"],
+                           has_smplx=ds.smplx is not None, overwrite=overwrite)
+    output = _Output(writer, max(ds.objects, default=-1) + 1)
+    try:
+        output.vc_writer = VertexContactWriter(writer.tmp, ctx.body.num_vertices, ds.joint_set.num_joints,
+                                               smplx=ds.smplx is None)
+        for si, seq in enumerate(seqs):
+            _augment_copies(ctx, output, si, seq, log, t0)
+        if not output.records:
+            raise ConfigError(f"{ds.root}: no augmented sequence could be made from split {cfg.split!r} "
+                              f"({', '.join(f'{k}: {v}' for k, v in output.skipped.items()) or 'no sequences'})")
+        path, summary = _finish(ctx, output, t0)
+    except BaseException:
+        if output.vc_writer is not None:
+            output.vc_writer.abort()
+        writer.abort()
+        raise
+    return AugmentResult(path, len(output.records), len(seqs), output.skipped, time.perf_counter() - t0, summary)
+
+
+def _context(root, out, cfg: AugmentConfig, body_model, object_meshes, overwrite: bool, progress: bool,
+             log) -> AugmentContext:
+    """The source dataset, its per-vertex contact labels (annotated first when it has none), the
+    body model and surfaces; the contact settings become those the labels were made with."""
     bm = body_model if isinstance(body_model, BodyModel) else load_body_model(body_model)
     ds = MotionDataset.open(root)
     if ds.object_ids is None:
@@ -198,79 +239,79 @@ def augment_dataset(root: str | Path, out: str | Path, cfg: AugmentConfig = Augm
     known = {f.name for f in fields(ContactConfig)}
     if isinstance(labels.info.get("config"), dict) and set(labels.info["config"]) == known:
         cfg = replace(cfg, contact=ContactConfig(**labels.info["config"]))     # relabel as the source was labelled
-    ctx = AugmentContext(ds, labels, bm, BodySurface(bm, ds.joint_set), SurfaceBank(ds, cfg.contact, object_meshes), cfg)
-    seqs = ds.split_sequences(cfg.split)
-    next_id = max(ds.objects, default=-1) + 1
-    writer = DatasetWriter(out, ds.joint_set, ds.action_names, ds.fps, ds.meta["num_object_slots"],
-                           has_smplx=ds.smplx is not None, overwrite=overwrite)
-    vc_writer = None
-    skipped: dict[str, int] = {}
-    records, stats, used_objects, used_scenes = [], [], set(), set()
-    try:
-        vc_writer = VertexContactWriter(writer.tmp, ctx.body.num_vertices, ds.joint_set.num_joints,
-                                        smplx=ds.smplx is None)
-        for si, seq in enumerate(seqs):
-            jt = np.asarray(labels.joints[seq.start:seq.end])                         # (T, J)
-            touched = [o for o in np.unique(jt[jt >= 0]).tolist()
-                       if o in ds.objects and ctx.bank.object_mesh(o) is not None
-                       and contact_runs(jt, o, cfg.min_contact_frames)]
-            if not touched:
-                skipped["no object contact"] = skipped.get("no object contact", 0) + cfg.copies
-                continue
-            for k in range(cfg.copies):
-                rng = np.random.default_rng([cfg.seed, si, k])
-                oid = int(rng.choice(touched))
-                slot_of, poses = object_track(ds, seq, oid)
-                edit = _edit(rng, cfg, ds, ctx.bank, ctx.bank.scene_field(seq.scene), oid, poses[slot_of[0][0]])
-                if edit is None:
-                    skipped["no possible edit"] = skipped.get("no possible edit", 0) + 1
-                    continue
-                new_id, next_id = next_id, next_id + 1
-                a = augment_sequence(ctx, seq, edit, new_id)
-                o = 0
-                for lab in a.labels:                       # the labels' body: the solved one
-                    n = len(lab[0])
-                    body = {k2: v if v.ndim == 1 else v[o:o + n] for k2, v in a.smplx.items()}
-                    vc_writer.add(*lab, smplx=body if ds.smplx is None else None)
-                    o += n
-                name = f"{seq.name}~aug{k}"
-                src_obj = ds.objects[oid]
-                writer.add_object(new_id, name=f"{src_obj['name']}~{edit.op}{new_id}", type=src_obj.get("type", ""),
-                                  mesh=edit.mesh)
-                writer.add_sequence(name, seq.scene, a.joints, np.asarray(ds.actions[seq.start:seq.end]), a.contact,
-                                    a.object_poses, a.object_ids, smplx=a.smplx if ds.smplx is not None else None)
-                used_scenes.add(seq.scene)
-                used_objects.update(int(o) for o in np.unique(a.object_ids) if o >= 0 and o != new_id)
-                stats.append(a.stats)
-                records.append({"name": name, "source": seq.name, "object": int(oid), "new_object": new_id,
-                                "op": edit.op, **edit.params, **{k2: round(v, 5) for k2, v in a.stats.items()}})
-                log(f"augment: {len(records)} {name}: {edit.op} {src_obj['name']} {edit.params} "
-                    f"(target error {100 * a.stats['target_error_m']:.2f} cm, contact kept "
-                    f"{100 * a.stats['contact_kept']:.0f} %, {time.perf_counter() - t0:.0f} s)")
-        if not records:
-            raise ConfigError(f"{ds.root}: no augmented sequence could be made from split {cfg.split!r} "
-                              f"({', '.join(f'{k}: {v}' for k, v in skipped.items()) or 'no sequences'})")
-        for sid in sorted(used_scenes):
-            entry = ds.scenes[sid]
-            writer.add_scene(sid, grid=ds.grid(sid) if entry.get("grid") else None, mesh=ds.scene_mesh(sid),
-                             name=entry.get("name"))
-        for oid in sorted(used_objects):
-            entry = ds.objects.get(oid, {"name": f"object_{oid}", "type": ""})
-            writer.add_object(oid, name=entry["name"], type=entry.get("type", ""), mesh=ctx.bank.object_mesh(oid))
-        seconds = time.perf_counter() - t0
-        summary = {k2: float(np.mean([s_[k2] for s_ in stats])) for k2 in stats[0]}
-        vc_writer.finish({"joint_names": list(ds.joint_set.names), "config": asdict(cfg.contact),
-                          "body": {"source": "augmentation solve", "model": str(bm.path)}})
-        extra = {"augmented": {"from": str(ds.root.resolve()), "source": ds.meta.get("source"),
-                               "config": {**asdict(cfg), "ops": list(cfg.ops)}, "sequences": records,
-                               "skipped": skipped, "summary": summary, "seconds": round(seconds, 2)}}
-        path = writer.finish(splits=ds.splits, source=f"{ds.meta.get('source', 'unknown')}+augmented", extra=extra)
-    except BaseException:
-        if vc_writer is not None:
-            vc_writer.abort()
-        writer.abort()
-        raise
-    return AugmentResult(path, len(records), len(seqs), skipped, time.perf_counter() - t0, summary)
+    return AugmentContext(ds, labels, bm, BodySurface(bm, ds.joint_set), SurfaceBank(ds, cfg.contact, object_meshes), cfg)
+
+
+def _augment_copies(ctx: AugmentContext, output: _Output, si: int, seq: Sequence, log, t0: float) -> None:
+    """The `copies` augmented versions of source sequence number `si`, each editing one object
+    the sequence touches (chosen, like the edit, by the seed, `si` and the copy's number)."""
+    ds, cfg = ctx.ds, ctx.cfg
+    jt = np.asarray(ctx.labels.joints[seq.start:seq.end])                         # (T, J)
+    touched = [o for o in np.unique(jt[jt >= 0]).tolist()
+               if o in ds.objects and ctx.bank.object_mesh(o) is not None
+               and contact_runs(jt, o, cfg.min_contact_frames)]
+    if not touched:
+        output.skipped["no object contact"] = output.skipped.get("no object contact", 0) + cfg.copies
+        return
+    for k in range(cfg.copies):
+        rng = np.random.default_rng([cfg.seed, si, k])
+        oid = int(rng.choice(touched))
+        slot_of, poses = object_track(ds, seq, oid)
+        edit = _edit(rng, cfg, ds, ctx.bank, ctx.bank.scene_field(seq.scene), oid, poses[slot_of[0][0]])
+        if edit is None:
+            output.skipped["no possible edit"] = output.skipped.get("no possible edit", 0) + 1
+            continue
+        new_id, output.next_id = output.next_id, output.next_id + 1
+        a = augment_sequence(ctx, seq, edit, new_id)
+        name = f"{seq.name}~aug{k}"
+        _write_sequence(ctx, output, seq, name, edit, new_id, a)
+        log(f"augment: {len(output.records)} {name}: {edit.op} {ds.objects[oid]['name']} {edit.params} "
+            f"(target error {100 * a.stats['target_error_m']:.2f} cm, contact kept "
+            f"{100 * a.stats['contact_kept']:.0f} %, {time.perf_counter() - t0:.0f} s)")
+
+
+def _write_sequence(ctx: AugmentContext, output: _Output, seq: Sequence, name: str, edit: edits.ObjectEdit,
+                    new_id: int, a: AugmentedSequence) -> None:
+    """One augmented sequence, its edited object and its contact labels into the output."""
+    ds, oid = ctx.ds, edit.object_id
+    o = 0
+    for lab in a.labels:                       # the labels' body: the solved one
+        n = len(lab[0])
+        body = {k2: v if v.ndim == 1 else v[o:o + n] for k2, v in a.smplx.items()}
+        output.vc_writer.add(*lab, smplx=body if ds.smplx is None else None)
+        o += n
+    src_obj = ds.objects[oid]
+    output.writer.add_object(new_id, name=f"{src_obj['name']}~{edit.op}{new_id}", type=src_obj.get("type", ""),
+                             mesh=edit.mesh)
+    output.writer.add_sequence(name, seq.scene, a.joints, np.asarray(ds.actions[seq.start:seq.end]), a.contact,
+                               a.object_poses, a.object_ids, smplx=a.smplx if ds.smplx is not None else None)
+    output.used_scenes.add(seq.scene)
+    output.used_objects.update(int(o) for o in np.unique(a.object_ids) if o >= 0 and o != new_id)
+    output.stats.append(a.stats)
+    output.records.append({"name": name, "source": seq.name, "object": int(oid), "new_object": new_id,
+                           "op": edit.op, **edit.params, **{k2: round(v, 5) for k2, v in a.stats.items()}})
+
+
+def _finish(ctx: AugmentContext, output: _Output, t0: float) -> tuple[Path, dict]:
+    """The scenes and source objects the sequences use, the labels and the metadata written;
+    the dataset published. Returns its path and the mean statistics."""
+    ds, cfg, writer = ctx.ds, ctx.cfg, output.writer
+    for sid in sorted(output.used_scenes):
+        entry = ds.scenes[sid]
+        writer.add_scene(sid, grid=ds.grid(sid) if entry.get("grid") else None, mesh=ds.scene_mesh(sid),
+                         name=entry.get("name"))
+    for oid in sorted(output.used_objects):
+        entry = ds.objects.get(oid, {"name": f"object_{oid}", "type": ""})
+        writer.add_object(oid, name=entry["name"], type=entry.get("type", ""), mesh=ctx.bank.object_mesh(oid))
+    seconds = time.perf_counter() - t0
+    summary = {k2: float(np.mean([s_[k2] for s_ in output.stats])) for k2 in output.stats[0]}
+    output.vc_writer.finish({"joint_names": list(ds.joint_set.names), "config": asdict(cfg.contact),
+                             "body": {"source": "augmentation solve", "model": str(ctx.bm.path)}})
+    extra = {"augmented": {"from": str(ds.root.resolve()), "source": ds.meta.get("source"),
+                           "config": {**asdict(cfg), "ops": list(cfg.ops)}, "sequences": output.records,
+                           "skipped": output.skipped, "summary": summary, "seconds": round(seconds, 2)}}
+    path = writer.finish(splits=ds.splits, source=f"{ds.meta.get('source', 'unknown')}+augmented", extra=extra)
+    return path, summary
 
 
 def _betas(b) -> np.ndarray:

@@ -52,11 +52,13 @@ def write_table(path: str | Path, table: dict) -> Path:
 def plot_penetration(path: str | Path, pen: np.ndarray, title: str = "", dpi: int = 100) -> Path:
     """Fig. A3: left, share of frames whose max / mean / median penetration is below x cm;
     right, frames by penetration range."""
+    # Imported here, when the figure is drawn: matplotlib is heavy (~0.5 s), the table needs only
+    # numpy, and choosing its backend on import would change it for every program importing motiongen.
     import matplotlib
 
     matplotlib.use("Agg", force=False)
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # heavy, as above
+    from matplotlib.figure import Figure  # heavy, as above
 
     cm = np.asarray(pen, np.float64) * 100                                          # (N, 3)
     N = max(len(cm), 1)

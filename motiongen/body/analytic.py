@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import torch
 
-from motiongen.body.rotations import matrix_to_rot6d, rot6d_to_matrix
+from motiongen.body.rotations import matrix_to_rot6d, rot6d_to_matrix, skew
 from motiongen.skeleton import BODY_PARENTS, NUM_BODY_JOINTS
 
 _CHILDREN = {j: [c for c in range(NUM_BODY_JOINTS) if BODY_PARENTS[c] == j] for j in range(NUM_BODY_JOINTS)}
@@ -29,8 +29,6 @@ def _min_rotation(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     b = torch.nn.functional.normalize(b, dim=-1)
     v = torch.cross(a, b, dim=-1)
     c = (a * b).sum(-1)[..., None, None]
-    from motiongen.body.rotations import skew
-
     K = skew(v)
     eye = torch.eye(3, dtype=a.dtype, device=a.device).expand(K.shape)
     R = eye + K + K @ K / (1 + c).clamp(min=1e-6)

@@ -17,12 +17,12 @@ rotations, translations, one β per sequence) with L-BFGS on
                                                  (swing clearance: smoothing may not lower a
                                                  swinging foot)
   + w_foot_vel · Σ max(0, ‖v_foot‖ − a) over feet near the floor or flagged in contact,
-                 / ((T−1)·K)                       (seed 002, Eq. 14; `foot_velocity.py`)
+                 / ((T−1)·K)                       (LEMO, Eq. 14; `foot_velocity.py`)
 
-(seed 000: 3D keypoint L2, second-difference smoothness of keypoints and joint angles, ℓ2
-shape prior). Only joint kinematics run per iteration (`BodyModel.joints_from_rotmats`), never
-the mesh. Small tensors make torch's intra-op threads pure overhead here, so refinement runs
-single-threaded by default (`threads`).
+(the multi-view capture paper: 3D keypoint L2, second-difference smoothness of keypoints and
+joint angles, ℓ2 shape prior). Only joint kinematics run per iteration
+(`BodyModel.joints_from_rotmats`), never the mesh. Small tensors make torch's intra-op threads
+pure overhead here, so refinement runs single-threaded by default (`threads`).
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from motiongen.body import train_mlp
 from motiongen.body._threads import torch_threads
 from motiongen.body.analytic import analytic_init, smooth_rotations
 from motiongen.body.foot_velocity import check_mask, foot_velocity_loss, foot_velocity_mask
@@ -43,6 +44,8 @@ from motiongen.body.mlp import JointsToBodyMLP
 from motiongen.body.model import BodyModel, BodyParams, load_body_model
 from motiongen.body.rotations import matrix_to_axis_angle, matrix_to_rot6d, rot6d_to_matrix
 from motiongen.errors import ConfigError
+from motiongen.paths import cache_dir
+from motiongen.rates import DATA_FPS
 from motiongen.skeleton import FOOT_JOINTS, NUM_BODY_JOINTS
 
 @dataclass
@@ -64,7 +67,7 @@ class RefineConfig:
     # Swing clearance: a contact joint that is not flagged planted is not pulled below the
     # target's height (squared shortfall, mean over swing entries). Needs `contact`.
     w_clearance: float = 0.0
-    # Seed 002's foot velocity term (foot_velocity.py): foot joints faster than foot_vel_a m/s
+    # LEMO's foot velocity term (foot_velocity.py): foot joints faster than foot_vel_a m/s
     # while within foot_z_thres m of floor_y ("height", in the target) or flagged by the
     # contact labels ("contact").
     w_foot_vel: float = 0.0
@@ -119,7 +122,7 @@ def lock_loss(J: torch.Tensor, ids: torch.Tensor, n: int, joints) -> torch.Tenso
 def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_init: torch.Tensor,
            cfg: RefineConfig = RefineConfig(), contact: torch.Tensor | None = None,
            fixed_betas: bool = False, contact_joints=FOOT_JOINTS, transl_init: torch.Tensor | None = None,
-           reach: tuple | None = None, fps: float = 30.0):
+           reach: tuple | None = None, fps: float = DATA_FPS):
     """Refine (T, 22, 3, 3) rotations, (T, 3) translations and (nβ,) betas to fit target
     joints (T, 22, 3) at `fps`. contact (T, C) bool flags `contact_joints` as planted (foot
     locking, weight `cfg.w_contact`; and the frames of the foot velocity term, weight
@@ -138,20 +141,7 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
     nb = max(betas.numel(), 1)
     # Scaled so that a 1 cm mean error is a loss of about 1: keeps L-BFGS tolerances meaningful.
     scale = 1e4
-    lock = None
-    if contact is not None and cfg.w_contact and bool(contact.any()):
-        lock = contact_spans(contact)
-    swing = None
-    if contact is not None and cfg.w_clearance:
-        swing = (~contact.to(torch.bool)).to(target.dtype)                      # (T, C)
-        swing_j = torch.as_tensor(list(contact_joints), device=target.device)  # (C,) once, not per loss call
-        swing_y = target[:, swing_j, 1]                                        # (T, C)
-        n_swing = swing.sum().clamp(min=1)
-    foot_mask = None
-    if cfg.w_foot_vel:
-        check_mask(cfg.foot_vel_mask, contact, T, len(contact_joints))
-        foot_mask = (contact.to(torch.bool) if cfg.foot_vel_mask == "contact"
-                     else foot_velocity_mask(target, contact_joints, cfg.floor_y, cfg.foot_z_thres))
+    ct = _contact_terms(cfg, target, contact, contact_joints)
 
     def loss_fn():
         R = rot6d_to_matrix(rot6d)                                             # (T, 22, 3, 3)
@@ -168,15 +158,15 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
             loss = loss + cfg.w_prior * (R - R0).square().sum((-1, -2)).mean()
         if betas.requires_grad and cfg.w_betas:
             loss = loss + cfg.w_betas * betas.square().sum() / nb
-        if lock is not None:
-            loss = loss + cfg.w_contact * lock_loss(J, *lock, contact_joints)
-        if foot_mask is not None:
-            loss = loss + cfg.w_foot_vel * foot_velocity_loss(J, foot_mask, contact_joints, fps, cfg.foot_vel_a)
+        if ct.lock is not None:
+            loss = loss + cfg.w_contact * lock_loss(J, *ct.lock, contact_joints)
+        if ct.foot_mask is not None:
+            loss = loss + cfg.w_foot_vel * foot_velocity_loss(J, ct.foot_mask, contact_joints, fps, cfg.foot_vel_a)
         if cfg.w_floor:
             loss = loss + cfg.w_floor * (cfg.floor_y - J[..., 1]).clamp(min=0).square().sum(-1).mean()
-        if swing is not None:
-            short = (swing_y - J[:, swing_j, 1]).clamp(min=0) * swing
-            loss = loss + cfg.w_clearance * short.square().sum() / n_swing
+        if ct.swing is not None:
+            short = (ct.swing_y - J[:, ct.swing_j, 1]).clamp(min=0) * ct.swing
+            loss = loss + cfg.w_clearance * short.square().sum() / ct.n_swing
         if reach is not None and cfg.w_reach:
             f, j, p, w = reach
             loss = loss + cfg.w_reach * (w * (J[f, j] - p).square().sum(-1)).sum() / w.sum().clamp(min=1e-9)
@@ -187,6 +177,36 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
     with torch.no_grad():
         R = rot6d_to_matrix(rot6d)
     return R, transl.detach(), betas.detach(), steps, history
+
+
+@dataclass
+class _ContactTerms:
+    """What the contact-driven terms of `refine`'s loss need, built once per solve (not at every
+    loss evaluation, the L-BFGS hot path). None: the term is off."""
+    lock: tuple | None = None                 # (span ids (T, C), number of spans) for foot locking
+    swing: torch.Tensor | None = None         # (T, C) 1.0 where a contact joint is not planted
+    swing_j: torch.Tensor | None = None       # (C,) the contact joints
+    swing_y: torch.Tensor | None = None       # (T, C) their target heights
+    n_swing: torch.Tensor | None = None       # () swing entries, at least 1
+    foot_mask: torch.Tensor | None = None     # (T, C) frames of the foot velocity term
+
+
+def _contact_terms(cfg: RefineConfig, target: torch.Tensor, contact: torch.Tensor | None, contact_joints) -> _ContactTerms:
+    """The foot-locking spans, swing-clearance targets and foot-velocity frames for target
+    joints (T, 22, 3) and contact flags (T, C) of `contact_joints`, as far as cfg's weights ask."""
+    ct = _ContactTerms()
+    if contact is not None and cfg.w_contact and bool(contact.any()):
+        ct.lock = contact_spans(contact)
+    if contact is not None and cfg.w_clearance:
+        ct.swing = (~contact.to(torch.bool)).to(target.dtype)                        # (T, C)
+        ct.swing_j = torch.as_tensor(list(contact_joints), device=target.device)     # (C,)
+        ct.swing_y = target[:, ct.swing_j, 1]                                        # (T, C)
+        ct.n_swing = ct.swing.sum().clamp(min=1)
+    if cfg.w_foot_vel:
+        check_mask(cfg.foot_vel_mask, contact, target.shape[0], len(contact_joints))
+        ct.foot_mask = (contact.to(torch.bool) if cfg.foot_vel_mask == "contact"
+                        else foot_velocity_mask(target, contact_joints, cfg.floor_y, cfg.foot_z_thres))
+    return ct
 
 
 def _optimise(cfg: RefineConfig, params: list, loss_fn) -> tuple[int, list[float]]:
@@ -234,23 +254,20 @@ def _model_key(bm: BodyModel) -> str:
 
 
 def default_mlp(bm: BodyModel, cache: bool = True, verbose: bool = False) -> JointsToBodyMLP:
-    """A small MLP trained briefly on synthetic motion of `bm` (about 30-60 s on 1-2 CPU
-    cores), cached per body model under the motiongen cache. Good enough as an initialiser
-    (a few cm); refinement does the rest."""
-    from motiongen.body.train_mlp import DataConfig, MLPConfig, TrainMLPConfig, load_mlp, save_checkpoint, train
-    from motiongen.paths import cache_dir
-
-    cfg = TrainMLPConfig(steps=1500, batch_size=256, lr=2e-3, log_every=250, threads=1,
-                         mlp=MLPConfig(width=256, layers=4, num_betas=min(10, bm.num_betas)),
-                         data=DataConfig(num_sequences=128, seq_frames=240))
+    """A small MLP trained briefly on synthetic motion of `bm` (a short CPU job), cached per
+    body model under the motiongen cache. Good enough as an initialiser (a few cm); refinement
+    does the rest."""
+    cfg = train_mlp.TrainMLPConfig(steps=1500, batch_size=256, lr=2e-3, log_every=250, threads=1,
+                                   mlp=train_mlp.MLPConfig(width=256, layers=4, num_betas=min(10, bm.num_betas)),
+                                   data=train_mlp.DataConfig(num_sequences=128, seq_frames=240))
     # Keyed by body model and training recipe, so a changed recipe never loads a stale network.
     recipe = hashlib.sha1(repr(cfg).encode()).hexdigest()[:8]
     path = cache_dir() / "body" / f"default_mlp_{_model_key(bm)}_{recipe}.pt"
     if cache and path.is_file():
-        return load_mlp(path)
-    model = train(cfg, bm=bm, verbose=verbose)
+        return train_mlp.load_mlp(path)
+    model = train_mlp.train(cfg, bm=bm, verbose=verbose)
     if cache:
-        save_checkpoint(model, cfg, path)
+        train_mlp.save_checkpoint(model, cfg, path)
     return model
 
 
@@ -258,7 +275,7 @@ def default_mlp(bm: BodyModel, cache: bool = True, verbose: bool = False) -> Joi
 
 def fit_joints(joints, body_model: BodyModel | None = None, mlp: JointsToBodyMLP | str | Path | None = None, *,
                betas=None, contact=None, config: RefineConfig = RefineConfig(), refine_steps: int | None = None,
-               device: str | torch.device = "cpu", fps: float = 30.0) -> FitResult:
+               device: str | torch.device = "cpu", fps: float = DATA_FPS) -> FitResult:
     """Fit SMPL-X parameters to body joints.
 
     joints: (T, 22, 3) array/tensor, metres, y-up (SMPL-X body joint order).
@@ -268,14 +285,10 @@ def fit_joints(joints, body_model: BodyModel | None = None, mlp: JointsToBodyMLP
     contact: (T, 4) bool planted flags for `skeleton.FOOT_JOINTS`: with config.w_contact > 0 each
     planted span of a foot joint is held in one place (foot locking, `lock_loss`); with
     config.w_foot_vel > 0 and foot_vel_mask "contact" they pick the frames of the foot velocity
-    term (seed 002). fps: the joints' frame rate (velocities of that term are in m/s).
+    term (LEMO). fps: the joints' frame rate (velocities of that term are in m/s).
     refine_steps: overrides config.max_steps; 0 returns the initialisation.
     """
-    X = joints if isinstance(joints, torch.Tensor) else torch.as_tensor(np.array(joints))  # copy: inputs may be read-only memmaps
-    if X.ndim != 3 or X.shape[1:] != (NUM_BODY_JOINTS, 3) or X.shape[0] < 1:
-        raise ConfigError(f"joints: expected shape (T, {NUM_BODY_JOINTS}, 3), got {tuple(X.shape)}")
-    if not torch.isfinite(X).all():
-        raise ConfigError("joints contain NaN or inf")
+    X = _checked_joints(joints)
     bm = body_model if body_model is not None else load_body_model()
     dev = torch.device(device)
     bm = bm.to(dev)
@@ -285,47 +298,16 @@ def fit_joints(joints, body_model: BodyModel | None = None, mlp: JointsToBodyMLP
         if isinstance(mlp, str) and mlp == "auto":
             mlp = default_mlp(bm)
         elif isinstance(mlp, (str, Path)):
-            from motiongen.body.train_mlp import load_mlp
-
-            mlp = load_mlp(mlp)
+            mlp = train_mlp.load_mlp(mlp)
         b_known = None if betas is None else torch.as_tensor(np.asarray(betas), dtype=X.dtype, device=dev)
-        mpjpe_mlp, R_mlp = None, None
-        b_init = torch.zeros(bm.num_betas, dtype=X.dtype, device=dev)
-        if mlp is not None:
-            mlp = mlp.to(dev)
-            pred = mlp.predict(X)
-            R_mlp = pred["rotmats"].to(X.dtype)                               # (T, 22, 3, 3)
-            if pred["betas"] is not None:
-                b_init[: pred["betas"].numel()] = pred["betas"][: bm.num_betas]
-            with torch.no_grad():
-                b_m = b_init if b_known is None else b_known
-                J_mlp = bm.joints_from_rotmats(R_mlp, X[:, 0] - bm.rest_joints(b_m)[0], b_m)
-                mpjpe_mlp = (J_mlp - X).norm(dim=-1).mean().item()
-        if b_known is not None:
-            b_init = b_known
-        if R_mlp is not None:
-            R_mlp = smooth_rotations(R_mlp, config.mlp_smooth_sigma)
-        R_init = analytic_init(X, bm.rest_joints(b_init), R_mlp)
+        R_init, b_init, mpjpe_mlp, mpjpe_init = _initialise(bm, X, mlp, b_known, config.mlp_smooth_sigma, dev)
         init = "mlp" if mlp is not None else "analytic"
-        with torch.no_grad():
-            J0 = bm.joints_from_rotmats(R_init, X[:, 0] - bm.rest_joints(b_init)[0], b_init)
-            mpjpe_init = (J0 - X).norm(dim=-1).mean().item()
         cfg = config if refine_steps is None else RefineConfig(**{**config.__dict__, "max_steps": refine_steps})
         ct = None if contact is None else torch.as_tensor(np.asarray(contact), dtype=torch.bool, device=dev)
         if cfg.w_foot_vel:
             check_mask(cfg.foot_vel_mask, ct, X.shape[0], len(FOOT_JOINTS))
         if cfg.max_steps > 0:
-            fixed = b_known is not None
-            R, transl, b, steps, hist = refine(bm, X, R_init, b_init, replace(cfg, w_foot_vel=0.0), ct,
-                                               fixed_betas=fixed, fps=fps)
-            if cfg.w_foot_vel:
-                # The term's hinge is a poor start for L-BFGS: from the initialisation, 30 iterations
-                # ended at 2-3x the loss reached from the joint fit (CMU mocap), so it is added in a
-                # second pass from the first pass's result. That pass needs ~100 iterations: after
-                # 30, a standing body's foot sliding at 2a still moved at 1.5a (docs/capture.md).
-                R, transl, b, s2, h2 = refine(bm, X, R, b, replace(cfg, max_steps=cfg.foot_vel_steps), ct,
-                                              fixed_betas=fixed, transl_init=transl, fps=fps)
-                steps, hist = steps + s2, hist + h2
+            R, transl, b, steps, hist = _refine_passes(bm, X, R_init, b_init, cfg, ct, b_known is not None, fps)
         else:
             R, transl, b, steps, hist = R_init, X[:, 0] - bm.rest_joints(b_init)[0], b_init, 0, []
         with torch.no_grad():
@@ -338,6 +320,62 @@ def fit_joints(joints, body_model: BodyModel | None = None, mlp: JointsToBodyMLP
         transl=transl.cpu().numpy(), betas=b.cpu().numpy(), joints=J.cpu().numpy(),
         per_frame_error=err.cpu().numpy(), mpjpe_mlp=mpjpe_mlp, mpjpe_init=mpjpe_init, mpjpe=err.mean().item(),
         steps=int(steps), seconds=time.time() - t0, init=init, history=hist)
+
+
+def _checked_joints(joints) -> torch.Tensor:
+    """The target joints (T, 22, 3) as a tensor, their shape and values checked."""
+    X = joints if isinstance(joints, torch.Tensor) else torch.as_tensor(np.array(joints))  # copy: inputs may be read-only memmaps
+    if X.ndim != 3 or X.shape[1:] != (NUM_BODY_JOINTS, 3) or X.shape[0] < 1:
+        raise ConfigError(f"joints: expected shape (T, {NUM_BODY_JOINTS}, 3), got {tuple(X.shape)}")
+    if not torch.isfinite(X).all():
+        raise ConfigError("joints contain NaN or inf")
+    return X
+
+
+def _initialise(bm: BodyModel, X: torch.Tensor, mlp: JointsToBodyMLP | None, b_known: torch.Tensor | None,
+                smooth_sigma: float, dev: torch.device):
+    """The start of refinement for target joints X (T, 22, 3): rotations (T, 22, 3, 3), the MLP's
+    (smoothed over `smooth_sigma` frames) or none, swing-corrected (`analytic_init`), and betas
+    (nβ,), known or the MLP's. Returns (rotations, betas, MLP's mean joint error or None, the
+    start's mean joint error), errors in metres."""
+    mpjpe_mlp, R_mlp = None, None
+    b_init = torch.zeros(bm.num_betas, dtype=X.dtype, device=dev)
+    if mlp is not None:
+        mlp = mlp.to(dev)
+        pred = mlp.predict(X)
+        R_mlp = pred["rotmats"].to(X.dtype)                               # (T, 22, 3, 3)
+        if pred["betas"] is not None:
+            b_init[: pred["betas"].numel()] = pred["betas"][: bm.num_betas]
+        with torch.no_grad():
+            b_m = b_init if b_known is None else b_known
+            J_mlp = bm.joints_from_rotmats(R_mlp, X[:, 0] - bm.rest_joints(b_m)[0], b_m)
+            mpjpe_mlp = (J_mlp - X).norm(dim=-1).mean().item()
+    if b_known is not None:
+        b_init = b_known
+    if R_mlp is not None:
+        R_mlp = smooth_rotations(R_mlp, smooth_sigma)
+    R_init = analytic_init(X, bm.rest_joints(b_init), R_mlp)
+    with torch.no_grad():
+        J0 = bm.joints_from_rotmats(R_init, X[:, 0] - bm.rest_joints(b_init)[0], b_init)
+        mpjpe_init = (J0 - X).norm(dim=-1).mean().item()
+    return R_init, b_init, mpjpe_mlp, mpjpe_init
+
+
+def _refine_passes(bm: BodyModel, X: torch.Tensor, R_init: torch.Tensor, b_init: torch.Tensor, cfg: RefineConfig,
+                   ct: torch.Tensor | None, fixed: bool, fps: float):
+    """`refine` without the foot velocity term, then (cfg.w_foot_vel) a second pass with it from
+    the first one's result. Returns (rotmats, transl, betas, steps, history) of both together."""
+    R, transl, b, steps, hist = refine(bm, X, R_init, b_init, replace(cfg, w_foot_vel=0.0), ct,
+                                       fixed_betas=fixed, fps=fps)
+    if cfg.w_foot_vel:
+        # The term's hinge is a poor start for L-BFGS: from the initialisation it ends far above
+        # the loss reached from the joint fit, so it is added in a second pass from the first
+        # pass's result, which needs more iterations than the first (`foot_vel_steps`; the
+        # measurements: docs/results.md).
+        R, transl, b, s2, h2 = refine(bm, X, R, b, replace(cfg, max_steps=cfg.foot_vel_steps), ct,
+                                      fixed_betas=fixed, transl_init=transl, fps=fps)
+        steps, hist = steps + s2, hist + h2
+    return R, transl, b, steps, hist
 
 
 def save_amass_npz(path: str | Path, fit: FitResult, fps: float, gender: str = "neutral") -> Path:

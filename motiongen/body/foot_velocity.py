@@ -1,11 +1,11 @@
-"""The foot-contact velocity term of seed 002 (LEMO supplement, Eq. 14), for `fit.refine`.
+"""The foot-contact velocity term of LEMO (its supplement, Eq. 14), for `fit.refine`.
 
     E_foot = Σ_{k,t : z_k^t ≤ z_thres} d(v_k^t, a),   d(v, a) = v − a if v ≥ a else 0
 
 v_k^t is the speed (m/s, all three axes) of foot joint k at frame t, z_k^t its height above
-the floor; the seed sets z_thres = 10 cm and a = 10 cm/s. The seed's heuristic selects the
+the floor; LEMO sets z_thres = 10 cm and a = 10 cm/s. LEMO's heuristic selects the
 frames by height; its learned variant (and ours with `mask="contact"`) by contact labels —
-from force sensors (`motiongen.capture.contact_sensors`) or annotation.
+from force sensors (`motiongen.capture.sensor_contact`) or annotation.
 
 Choices here: v_k^t is the forward difference ‖J_{t+1} − J_t‖·fps (frames 0..T−2); the sum is
 divided by (T−1)·K, so the weight does not grow with the clip's length (like every other term

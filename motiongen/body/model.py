@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from motiongen.body.procedural import ensure_procedural_model
 from motiongen.body.rotations import axis_angle_to_matrix
 from motiongen.errors import DataError
 from motiongen.skeleton import BODY_PARENTS, NUM_BODY_JOINTS
@@ -275,8 +276,6 @@ def resolve_model_path(path: str | Path | None = None) -> Path:
     env = os.environ.get(MODEL_ENV)
     if env:
         return Path(env).expanduser()
-    from motiongen.body.procedural import ensure_procedural_model
-
     return ensure_procedural_model()
 
 

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from motiongen.paths import cache_dir
+
 PROCEDURAL_VERSION = 1
 NUM_VERTICES = 10475  # as in SMPL-X
 NUM_JOINTS = 55
@@ -143,26 +145,20 @@ def _smoothstep(x):
     return x * x * (3 - 2 * x)
 
 
-def build_procedural_model() -> dict[str, np.ndarray]:
-    """Arrays of the procedural SMPL-X model, keyed as in the official `.npz`."""
-    J = _rest_joints()
-    parents = np.array(SMPLX_PARENTS)
-    S = _bone_scale_dirs()
-    D = np.zeros((NUM_JOINTS, 3, NUM_BETAS))  # joint shape directions (55, 3, 10)
-    for j in range(1, NUM_JOINTS):
-        p = parents[j]
-        D[j] = D[p] + (J[j] - J[p])[:, None] * S[j][None, :]
-    girth = _girth_dirs()
-    children = {j: [c for c in range(NUM_JOINTS) if parents[c] == j] for j in range(NUM_JOINTS)}
+class _TubeMesh:
+    """The coarse body mesh being built, tube by tube: per-vertex lists of positions (3,), shape
+    directions (3, 10), skinning weights (55,) and bulge rows (4,: normal * amount, joint), the
+    faces, and the vertex ring regressed to each joint."""
 
-    verts, sdirs, weights, faces, bulge = [], [], [], [], []  # per-vertex lists
-    regress = {}  # joint -> vertex ids of the ring centred on it
-    nv = 0
+    def __init__(self, girth: np.ndarray):
+        self.girth = girth                                # (10,) fractional radius change per beta
+        self.verts, self.sdirs, self.weights, self.faces, self.bulge = [], [], [], [], []
+        self.regress: dict[int, list[int]] = {}           # joint -> vertex ids of the ring centred on it
+        self.nv = 0
 
-    def add_tube(a, b, Da, Db, ja, jb, radius, n_rings, n_around, leaf, regress_start=None, regress_end=None):
+    def add_tube(self, a, b, Da, Db, ja, jb, radius, n_rings, n_around, leaf, regress_start=None, regress_end=None):
         """Tube from point a to b; rigid with joint ja, blending into jb near b unless leaf.
         Da, Db: (3, 10) shape directions of the end points."""
-        nonlocal nv
         d = b - a
         d = d / np.linalg.norm(d)
         u, v = _frame(d)
@@ -172,50 +168,71 @@ def build_procedural_model() -> dict[str, np.ndarray]:
             # a slightly bulging profile so tubes look like limbs, not pipes
             prof = 1.0 + 0.15 * np.sin(np.pi * t) if n_rings > 2 else 1.0
             rho = (radius[0] * prof * np.cos(phi))[:, None] * u + (radius[1] * prof * np.sin(phi))[:, None] * v
-            centre = a + t * (b - a)
-            w = np.zeros((n_around, NUM_JOINTS))
-            blend = 0.0 if leaf else 0.5 * _smoothstep((t - 0.7) / 0.3)
-            w[:, ja] = 1 - blend
-            if not leaf:
-                w[:, jb] += blend
-            ids = list(range(nv, nv + n_around))
-            verts.append(centre + rho)
-            # shape: the centre follows the joints, the radial offset scales with girth
-            sdirs.append((Da + t * (Db - Da))[None] + rho[:, :, None] * girth[None, None, :])
-            weights.append(w)
-            nrm = rho / np.linalg.norm(rho, axis=1, keepdims=True)
-            bulge.append(np.concatenate([nrm * blend, np.full((n_around, 1), jb if not leaf else -1)], 1))
-            nv += n_around
-            ring_ids.append(ids)
+            ring_ids.append(self._ring(a + t * (b - a), rho, Da + t * (Db - Da), ja, jb, t, leaf))
         for r in range(n_rings - 1):
             A, B = np.array(ring_ids[r]), np.array(ring_ids[r + 1])
             An, Bn = np.roll(A, -1), np.roll(B, -1)
-            faces.append(np.stack([A, An, B], 1))
-            faces.append(np.stack([An, Bn, B], 1))
-        for end, ids, c in ((0, ring_ids[0], a), (1, ring_ids[-1], b)):
-            w = np.zeros((1, NUM_JOINTS))
-            w[0, ja] = 1.0
-            verts.append(c[None])
-            sdirs.append((Da if end == 0 else Db)[None])
-            weights.append(w)
-            bulge.append(np.array([[0.0, 0.0, 0.0, -1]]))
-            A = np.array(ids)
-            tri = np.stack([np.full_like(A, nv), np.roll(A, -1), A], 1) if end == 0 else \
-                np.stack([np.full_like(A, nv), A, np.roll(A, -1)], 1)
-            faces.append(tri)
-            nv += 1
+            self.faces.append(np.stack([A, An, B], 1))
+            self.faces.append(np.stack([An, Bn, B], 1))
+        self._cap(a, Da, ja, ring_ids[0], first=True)
+        self._cap(b, Db, ja, ring_ids[-1], first=False)
         if regress_start is not None:
-            regress[regress_start] = ring_ids[0]
+            self.regress[regress_start] = ring_ids[0]
         if regress_end is not None:
-            regress[regress_end] = ring_ids[-1]
+            self.regress[regress_end] = ring_ids[-1]
 
+    def _ring(self, centre, rho, D, ja, jb, t, leaf) -> list[int]:
+        """One ring of vertices centre + rho (n, 3) at fraction t along the tube; returns their ids."""
+        n_around = len(rho)
+        w = np.zeros((n_around, NUM_JOINTS))
+        blend = 0.0 if leaf else 0.5 * _smoothstep((t - 0.7) / 0.3)
+        w[:, ja] = 1 - blend
+        if not leaf:
+            w[:, jb] += blend
+        ids = list(range(self.nv, self.nv + n_around))
+        self.verts.append(centre + rho)
+        # shape: the centre follows the joints, the radial offset scales with girth
+        self.sdirs.append(D[None] + rho[:, :, None] * self.girth[None, None, :])
+        self.weights.append(w)
+        nrm = rho / np.linalg.norm(rho, axis=1, keepdims=True)
+        self.bulge.append(np.concatenate([nrm * blend, np.full((n_around, 1), jb if not leaf else -1)], 1))
+        self.nv += n_around
+        return ids
+
+    def _cap(self, c, D, ja, ids, first: bool) -> None:
+        """A fan closing an end ring `ids` around its centre c (rigid with joint ja)."""
+        w = np.zeros((1, NUM_JOINTS))
+        w[0, ja] = 1.0
+        self.verts.append(c[None])
+        self.sdirs.append(D[None])
+        self.weights.append(w)
+        self.bulge.append(np.array([[0.0, 0.0, 0.0, -1]]))
+        A = np.array(ids)
+        tri = np.stack([np.full_like(A, self.nv), np.roll(A, -1), A], 1) if first else \
+            np.stack([np.full_like(A, self.nv), A, np.roll(A, -1)], 1)
+        self.faces.append(tri)
+        self.nv += 1
+
+
+def _joint_shape_dirs(J: np.ndarray, parents: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """(55, 3, 10) joint shape directions: each bone (J_j - J_parent) scales by S (55, 10)."""
+    D = np.zeros((NUM_JOINTS, 3, NUM_BETAS))
+    for j in range(1, NUM_JOINTS):
+        p = parents[j]
+        D[j] = D[p] + (J[j] - J[p])[:, None] * S[j][None, :]
+    return D
+
+
+def _add_body_tubes(mesh: _TubeMesh, J: np.ndarray, D: np.ndarray, S: np.ndarray, parents: np.ndarray) -> None:
+    """A tube per bone, then leaf extensions: skull, toes, finger tips, jaw/eye ends (rigid with
+    their joint)."""
+    children = {j: [c for c in range(NUM_JOINTS) if parents[c] == j] for j in range(NUM_JOINTS)}
     for j in range(1, NUM_JOINTS):
         p = parents[j]
         big = j < 22
-        add_tube(J[p], J[j], D[p], D[j], p, j, _tube_radius(SMPLX_JOINT_NAMES[j]),
-                 n_rings=7 if big else 3, n_around=20 if big else 8, leaf=not children[j],
-                 regress_start=0 if j == 3 else None, regress_end=j)
-    # Leaf extensions: skull, toes, finger tips, jaw/eye ends (rigid with their joint).
+        mesh.add_tube(J[p], J[j], D[p], D[j], p, j, _tube_radius(SMPLX_JOINT_NAMES[j]),
+                      n_rings=7 if big else 3, n_around=20 if big else 8, leaf=not children[j],
+                      regress_start=0 if j == 3 else None, regress_end=j)
     ext = {15: (np.array([0.0, 0.2, 0.02]), (0.085, 0.095), 9, 24)}
     for j in range(NUM_JOINTS):
         if children[j] or j in ext:
@@ -227,27 +244,40 @@ def build_procedural_model() -> dict[str, np.ndarray]:
     for j, (vec, rad, n_r, n_a) in sorted(ext.items()):
         # the extension scales like the bone it continues
         Dend = D[j] + vec[:, None] * S[j][None, :]
-        add_tube(J[j], J[j] + vec, D[j], Dend, j, j, rad, n_r, n_a, leaf=True)
+        mesh.add_tube(J[j], J[j] + vec, D[j], Dend, j, j, rad, n_r, n_a, leaf=True)
 
-    v = np.concatenate(verts)                 # (V0, 3)
-    sd = np.concatenate(sdirs)                # (V0, 3, 10)
-    w = np.concatenate(weights)               # (V0, 55)
-    bl = np.concatenate(bulge)                # (V0, 4): bulge normal * amount, joint
-    f = np.concatenate(faces).astype(np.int64)
-    v, sd, w, bl, f = _refine_to(NUM_VERTICES, v, sd, w, bl, f)
 
-    Jreg = np.zeros((NUM_JOINTS, NUM_VERTICES))
-    for j, ids in regress.items():
-        Jreg[j, ids] = 1.0 / len(ids)
-    assert len(regress) == NUM_JOINTS
-
-    # Pose blend shapes: the diagonal of (R_j - I) sums to 2(cos θ - 1), so a bent joint's
-    # nearby vertices bulge outwards by about 5 mm * (1 - cos θ) * 2.
+def _pose_blend_shapes(bl: np.ndarray) -> np.ndarray:
+    """(V, 3, 486) posedirs from the bulge rows bl (V, 4). The diagonal of (R_j - I) sums to
+    2(cos θ - 1), so a bent joint's nearby vertices bulge outwards by about 5 mm * (1 - cos θ) * 2."""
     posedirs = np.zeros((NUM_VERTICES, 3, 9 * (NUM_JOINTS - 1)))
     has = bl[:, 3] >= 1
     jj = bl[has, 3].astype(int)
     for k in (0, 4, 8):
         posedirs[np.nonzero(has)[0], :, 9 * (jj - 1) + k] = -0.005 * bl[has, :3]
+    return posedirs
+
+
+def build_procedural_model() -> dict[str, np.ndarray]:
+    """Arrays of the procedural SMPL-X model, keyed as in the official `.npz`."""
+    J = _rest_joints()
+    parents = np.array(SMPLX_PARENTS)
+    S = _bone_scale_dirs()
+    D = _joint_shape_dirs(J, parents, S)
+    mesh = _TubeMesh(_girth_dirs())
+    _add_body_tubes(mesh, J, D, S, parents)
+    v = np.concatenate(mesh.verts)            # (V0, 3)
+    sd = np.concatenate(mesh.sdirs)           # (V0, 3, 10)
+    w = np.concatenate(mesh.weights)          # (V0, 55)
+    bl = np.concatenate(mesh.bulge)           # (V0, 4): bulge normal * amount, joint
+    f = np.concatenate(mesh.faces).astype(np.int64)
+    v, sd, w, bl, f = _refine_to(NUM_VERTICES, v, sd, w, bl, f)
+
+    Jreg = np.zeros((NUM_JOINTS, NUM_VERTICES))
+    for j, ids in mesh.regress.items():
+        Jreg[j, ids] = 1.0 / len(ids)
+    assert len(mesh.regress) == NUM_JOINTS
+    posedirs = _pose_blend_shapes(bl)
 
     rng = np.random.default_rng(99)
     expr = np.zeros((NUM_VERTICES, 3, NUM_EXPRESSION))
@@ -302,8 +332,6 @@ def _refine_to(n_target, v, sd, w, bl, f):
 
 
 def default_model_path() -> Path:
-    from motiongen.paths import cache_dir
-
     return cache_dir() / "body" / f"SMPLX_NEUTRAL_procedural_v{PROCEDURAL_VERSION}.npz"
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from motiongen.rates import DATA_FPS
 from motiongen.skeleton import BODY_JOINT_NAMES
 
 # Per left/central joint: (lo, hi, typical) for each axis-angle component x, y, z (radians).
@@ -56,7 +57,7 @@ def smooth_noise(rng: np.random.Generator, t: np.ndarray, shape: tuple, fmin=0.0
     return (a[None] * np.sin(2 * np.pi * f[None] * tt + ph[None])).sum(1)
 
 
-def sample_motion(num_frames: int, fps: float = 30.0, rng: np.random.Generator | None = None,
+def sample_motion(num_frames: int, fps: float = DATA_FPS, rng: np.random.Generator | None = None,
                   gait: bool | None = None, num_betas: int = 10) -> dict[str, np.ndarray]:
     """One random sequence: global_orient (T, 3), body_pose (T, 63), transl (T, 3), betas (nβ,)."""
     rng = rng if rng is not None else np.random.default_rng()

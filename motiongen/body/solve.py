@@ -24,12 +24,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
+from scipy.optimize import least_squares
 
 from motiongen.body.analytic import analytic_init
-from motiongen.body.fit import RefineConfig, refine
+from motiongen.body.fit import FitResult, RefineConfig, refine
 from motiongen.body.limbs import place_limbs
 from motiongen.body.model import BodyModel, BodyParams, forward_kinematics
 from motiongen.body.rotations import matrix_to_axis_angle
+from motiongen.metrics import bone_lengths
 from motiongen.skeleton import EXTRA_JOINTS, NUM_BODY_JOINTS, JointSet
 
 # Shape coefficients are ~N(0, 1) over real people: beyond 3 sigma is not a body, whatever an
@@ -60,8 +62,6 @@ class BodyMotion(BodyParams):
     def as_fit(self, joints: np.ndarray):
         """A `FitResult` (for `fit.save_amass_npz`) of this body against `joints` (T, J, 3): the
         output motion is this body's own joints, so the per-frame error is what it is (~0)."""
-        from motiongen.body.fit import FitResult
-
         err = np.linalg.norm(self.joints[:, :NUM_BODY_JOINTS] - joints[:, :NUM_BODY_JOINTS], axis=-1).mean(-1)
         return FitResult(self.global_orient, self.body_pose, self.transl, self.betas,
                          self.joints[:, :NUM_BODY_JOINTS], err, None, float(err.mean()), float(err.mean()),
@@ -93,10 +93,6 @@ class MotionBody:
         rest skeleton has the window's bone lengths (median over its frames; least squares with
         a weak pull towards the mean shape). Bone lengths are what a shape fixes; the pose is the
         projection's business, so this is a 10-parameter problem, solved in milliseconds."""
-        from scipy.optimize import least_squares
-
-        from motiongen.metrics import bone_lengths
-
         parents = bm.parents
         kids = np.array([c for c, p in enumerate(parents) if p >= 0])
         par = np.array([parents[c] for c in kids])

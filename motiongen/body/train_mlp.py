@@ -1,7 +1,5 @@
-"""Train the 3-frame joints → SMPL-X MLP.
-
-    motiongen train-body-mlp out=runs/j2b steps=20000 mlp.width=512 \
-        [data.root=DATASET_DIR] [body.model_path=SMPLX_NEUTRAL.npz]
+"""Train the 3-frame joints → SMPL-X MLP (`motiongen train-body-mlp`, or `motiongen train
+task=joints2body`: motiongen/commands/).
 
 Training pairs are (joints, parameters) with joints produced by *our* body model from the
 parameters, so the network learns the inverse of exactly the kinematics that refinement uses.
@@ -26,8 +24,10 @@ from motiongen.body.mlp import JointsToBodyMLP, MLPConfig, canonicalise
 from motiongen.body.model import BodyModel, load_body_model
 from motiongen.body.random_motion import sample_motion
 from motiongen.body.rotations import axis_angle_to_matrix, rot6d_to_matrix
+from motiongen.data.format import MotionDataset
 from motiongen.errors import ConfigError, DataError
 from motiongen.geometry import yaw_matrix
+from motiongen.rates import DATA_FPS
 
 
 @dataclass
@@ -42,7 +42,7 @@ class DataConfig:
     split: str | None = "train"
     num_sequences: int = 256        # synthetic: sequences in the pool
     seq_frames: int = 240           # synthetic: frames per sequence
-    fps: float = 30.0
+    fps: float = DATA_FPS
     edge_prob: float = 0.1          # chance a neighbour is replaced by the middle frame (as at edges)
 
 
@@ -66,8 +66,6 @@ class TrainMLPConfig:
 
 
 def _pool_from_dataset(cfg: DataConfig, num_betas: int):
-    from motiongen.data.format import MotionDataset
-
     ds = MotionDataset.open(cfg.root)
     if ds.smplx is None:
         return None
@@ -133,7 +131,7 @@ def _train(cfg: TrainMLPConfig, bm: BodyModel | None, log_dir: str | None, verbo
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: 0.5 * (1 + math.cos(math.pi * min(s / cfg.steps, 1.0))))
     writer = None
     if log_dir:
-        from torch.utils.tensorboard import SummaryWriter
+        from torch.utils.tensorboard import SummaryWriter  # TensorBoard pulls in its own stack: only when logging
 
         writer = SummaryWriter(log_dir)
     t0 = time.time()
@@ -205,31 +203,10 @@ def _plain(d):
     return {k: _plain(v) if isinstance(v, dict) else v for k, v in d.items()}
 
 
-def _register() -> None:
-    from hydra.core.config_store import ConfigStore
-
-    ConfigStore.instance().store(name="train_mlp", node=TrainMLPConfig)
-
-
-def main() -> None:
-    import hydra
-    from omegaconf import OmegaConf
-
-    from motiongen.cli import user_errors_exit_2
-
-    _register()
-
-    @hydra.main(version_base=None, config_path=None, config_name="train_mlp")
-    @user_errors_exit_2
-    def run(c) -> None:
-        cfg: TrainMLPConfig = OmegaConf.to_object(c)
-        out = Path(cfg.out)
-        model = train(cfg, log_dir=str(out / "tb"))
-        p = save_checkpoint(model, cfg, out / "mlp.pt")
-        print(f"saved {p}")
-
-    run()
-
-
-if __name__ == "__main__":
-    main()
+def train_and_save(cfg: TrainMLPConfig) -> Path:
+    """Train with TensorBoard logs in `cfg.out/tb`, save `cfg.out/mlp.pt` and say where."""
+    out = Path(cfg.out)
+    model = train(cfg, log_dir=str(out / "tb"))
+    path = save_checkpoint(model, cfg, out / "mlp.pt")
+    print(f"saved {path}")
+    return path

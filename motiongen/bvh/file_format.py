@@ -165,26 +165,66 @@ def parse_bvh(text: str, path: str | Path = "<memory>") -> BVH:
     motion_at = next((i for i, l in enumerate(all_lines) if l.strip().upper() == "MOTION"), None)
     if motion_at is None:
         raise DataError(path, None, "no MOTION section (truncated or not a BVH file)")
-    toks = _Tokens([(i + 1, l) for i, l in enumerate(all_lines[:motion_at])], path)
-    first = toks.peek()
-    if first is None or first.upper() != "HIERARCHY":
-        raise toks.error(f"expected 'HIERARCHY' at the start of the file, found {first!r}")
-    toks.next("HIERARCHY")
+    tree = _Hierarchy(_Tokens([(i + 1, l) for i, l in enumerate(all_lines[:motion_at])], path))
+    tree.parse()
+    n_frames, dt, first_row = _motion_header(all_lines, motion_at + 1, path)
+    motion = _motion_rows(all_lines, first_row, n_frames, sum(len(c) for c in tree.channels), path)
+    return BVH(tree.names, np.array(tree.parents), np.array(tree.offsets, dtype=np.float64).reshape(-1, 3),
+               tree.channels, np.array(tree.is_end, bool), motion, dt, path)
 
-    names, parents, offsets, channels, is_end = [], [], [], [], []
 
-    def joint_body(parent: int, name: str, ln: int, end_site: bool) -> None:
-        if name in names:
+class _Hierarchy:
+    """The HIERARCHY section read joint by joint into per-joint lists (file order)."""
+
+    def __init__(self, toks: _Tokens):
+        self.toks = toks
+        self.names, self.parents, self.offsets, self.channels, self.is_end = [], [], [], [], []
+
+    def parse(self) -> None:
+        toks = self.toks
+        first = toks.peek()
+        if first is None or first.upper() != "HIERARCHY":
+            raise toks.error(f"expected 'HIERARCHY' at the start of the file, found {first!r}")
+        toks.next("HIERARCHY")
+        tok, ln = toks.next("ROOT")
+        if tok.upper() != "ROOT":
+            raise toks.error(f"expected 'ROOT', found {tok!r}", ln)
+        self.joint(-1, toks.rest_of_line(ln, "ROOT"), ln, False)
+        if toks.peek() is not None:
+            tok, ln = toks.next("end of hierarchy")
+            raise toks.error(f"unexpected {tok!r} after the ROOT joint's closing '}}' (only one ROOT is supported)", ln)
+
+    def joint(self, parent: int, name: str, ln: int, end_site: bool) -> None:
+        """One joint (or End Site) from its opening '{' to its closing '}', children included."""
+        toks = self.toks
+        if name in self.names:
             raise toks.error(f"duplicate joint name {name!r}", ln)
-        j = len(names)
-        names.append(name), parents.append(parent), is_end.append(end_site)
-        offsets.append(np.zeros(3)), channels.append(())
+        j = len(self.names)
+        self.names.append(name), self.parents.append(parent), self.is_end.append(end_site)
+        self.offsets.append(np.zeros(3)), self.channels.append(())
         toks.expect("{")
         toks.expect("OFFSET")
-        offsets[j] = np.array([toks.number(f"OFFSET of {name!r}") for _ in range(3)])
+        self.offsets[j] = np.array([toks.number(f"OFFSET of {name!r}") for _ in range(3)])
         if end_site:
             toks.expect("}")
             return
+        self.channels[j] = self._channel_list(name)
+        while True:
+            tok, lnc = toks.next(f"the children of {name!r}")
+            up = tok.upper()
+            if up == "}":
+                return
+            if up == "JOINT":
+                self.joint(j, toks.rest_of_line(lnc, "JOINT"), lnc, False)
+            elif up == "END":
+                toks.expect("Site")
+                self.joint(j, f"{name}_end", lnc, True)
+            else:
+                raise toks.error(f"expected JOINT, End Site or '}}' inside {name!r}, found {tok!r}", lnc)
+
+    def _channel_list(self, name: str) -> tuple[str, ...]:
+        """The joint's ``CHANNELS n name...`` line."""
+        toks = self.toks
         tok, ln2 = toks.next(f"CHANNELS of {name!r}")
         if tok.upper() != "CHANNELS":
             raise toks.error(f"expected 'CHANNELS' for joint {name!r}, found {tok!r}", ln2)
@@ -200,30 +240,13 @@ def parse_bvh(text: str, path: str | Path = "<memory>") -> BVH:
         rot_axes = [c[0].upper() for c in chans if c.lower().endswith("rotation")]
         if len(set(rot_axes)) != len(rot_axes):
             raise toks.error(f"joint {name!r}: repeated rotation axis in {chans}", ln2)
-        channels[j] = tuple(chans)
-        while True:
-            tok, lnc = toks.next(f"the children of {name!r}")
-            up = tok.upper()
-            if up == "}":
-                return
-            if up == "JOINT":
-                joint_body(j, toks.rest_of_line(lnc, "JOINT"), lnc, False)
-            elif up == "END":
-                toks.expect("Site")
-                joint_body(j, f"{name}_end", lnc, True)
-            else:
-                raise toks.error(f"expected JOINT, End Site or '}}' inside {name!r}, found {tok!r}", lnc)
+        return tuple(chans)
 
-    tok, ln = toks.next("ROOT")
-    if tok.upper() != "ROOT":
-        raise toks.error(f"expected 'ROOT', found {tok!r}", ln)
-    joint_body(-1, toks.rest_of_line(ln, "ROOT"), ln, False)
-    if toks.peek() is not None:
-        tok, ln = toks.next("end of hierarchy")
-        raise toks.error(f"unexpected {tok!r} after the ROOT joint's closing '}}' (only one ROOT is supported)", ln)
 
-    # MOTION: "Frames: N", "Frame Time: dt", then N lines of C numbers.
-    header, i = {}, motion_at + 1
+def _motion_header(all_lines: list[str], i: int, path: str) -> tuple[int, float, int]:
+    """MOTION's "Frames: N" and "Frame Time: dt" lines from line index i: (N, dt, index of the
+    line after them)."""
+    header = {}
     for key in ("frames", "frame time"):
         while i < len(all_lines) and not all_lines[i].strip():
             i += 1
@@ -242,7 +265,11 @@ def parse_bvh(text: str, path: str | Path = "<memory>") -> BVH:
         raise DataError(path, None, f"empty motion (Frames: {n_frames})")
     if not dt > 0:
         raise DataError(path, None, f"Frame Time must be positive, found {dt}")
-    C = sum(len(c) for c in channels)
+    return n_frames, dt, i
+
+
+def _motion_rows(all_lines: list[str], i: int, n_frames: int, C: int, path: str) -> np.ndarray:
+    """(n_frames, C) float64 channel values from the non-blank lines from line index i on."""
     data = [(ln + 1, l.split()) for ln, l in enumerate(all_lines[i:], start=i) if l.strip()]
     if len(data) < n_frames:
         where = f" (last line {data[-1][0]} has {len(data[-1][1])} of {C} values)" if data and len(data[-1][1]) != C else ""
@@ -265,8 +292,7 @@ def parse_bvh(text: str, path: str | Path = "<memory>") -> BVH:
     if not np.isfinite(motion).all():
         k = int(np.argmax(~np.isfinite(motion).all(axis=1)))
         raise DataError(path, None, f"line {data[k][0]}: non-finite channel value")
-    return BVH(names, np.array(parents), np.array(offsets, dtype=np.float64).reshape(-1, 3), channels,
-               np.array(is_end, bool), motion, dt, path)
+    return motion
 
 
 def load_bvh(path: str | Path) -> BVH:

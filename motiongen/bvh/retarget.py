@@ -17,6 +17,7 @@ from motiongen.bvh.file_format import BVH, load_bvh
 from motiongen.bvh.detect import (UNITS, check_plausible, detect_unit, detect_up, leg_length, parse_up,
                                        stature, up_rotation)
 from motiongen.errors import DataError
+from motiongen.rates import DATA_FPS
 from motiongen.skeleton import BODY_JOINT_NAMES, HEAD
 
 # ---------------------------------------------------------------------------------------
@@ -177,7 +178,7 @@ def _head_and_below(bvh: BVH, head: list[int]) -> list[int]:
 
 
 def bvh_to_body(bvh: BVH, mapping: dict[str, object] | None = None, mapping_path: str | Path | None = None,
-                fps: float | None = 30.0, unit: str | None = None, floor: bool = True,
+                fps: float | None = DATA_FPS, unit: str | None = None, floor: bool = True,
                 up: str | None = None) -> ImportedMotion:
     """Map a BVH onto our 22 body joints: metres, y-up, resampled to `fps` (None keeps the file's).
 

@@ -13,8 +13,9 @@ sensor time to video frame (`ClockMap`: offset and the clocks' rate ratio, check
 binarised with a per-sensor threshold (given, or Otsu's on the channel's own distribution of
 readings within the trial), and runs shorter than `min_contact_frames` / gaps shorter than
 `min_gap_frames` are flipped. Outputs (`sensor_outputs`): `contact.npz`, `report.json`, the
-check plot `sensors.png` (as the seed's Fig. 2) and, with `dataset=`/`sequence=`, the contact
-labels of the sensors' joints written into that sequence's `contact.npy`.
+check plot `sensors.png` (as Fig. 2 of the multi-view capture paper) and, with
+`dataset=`/`sequence=`, the contact labels of the sensors' joints written into that sequence's
+`contact.npy`.
 """
 
 

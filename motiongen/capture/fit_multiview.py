@@ -1,4 +1,4 @@
-"""Fit SMPL-X to multi-view 2D keypoints (and optional 3D keypoints): seed 000, A1.
+"""Fit SMPL-X to multi-view 2D keypoints (and optional 3D keypoints): the multi-view capture paper, A1.
 
     motiongen fit-multiview cameras=cams.json keypoints2d=kp2d.npz out=DIR
         [keypoints3d=kp3d.npz] [layout=smplx22|coco17|body25] [fps=30] [prior=builtin|PATH]
@@ -22,10 +22,16 @@ from pathlib import Path
 
 import numpy as np
 
-from motiongen.capture.multiview import MultiviewConfig
+from motiongen.body.fit import FitResult, save_amass_npz
+from motiongen.body.model import load_body_model
+from motiongen.capture.cameras import load_cameras
+from motiongen.capture.keypoints import load_keypoints2d, load_keypoints3d
+from motiongen.capture.multiview import MultiviewConfig, fit_multiview
+from motiongen.capture.pose_prior import load_prior
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.errors import ConfigError
 from motiongen.skeleton import BODY_JOINT_NAMES
+from motiongen.staging import StagedOutputs
 
 _D = MultiviewConfig()        # the defaults live there, once
 SPEC = {"cameras": (str, None), "keypoints2d": (str, None), "keypoints3d": (str, None), "out": (str, None),
@@ -72,14 +78,6 @@ def _summary(a: np.ndarray, scale: float) -> dict:
 def run(argv: list[str]) -> dict:
     opts = parse_key_values(argv, SPEC, required=("cameras", "keypoints2d", "out"), usage=USAGE, doc=__doc__)
     cfg = config_from(opts)
-    from motiongen.body.fit import FitResult, save_amass_npz
-    from motiongen.body.model import load_body_model
-    from motiongen.capture.cameras import load_cameras
-    from motiongen.capture.keypoints import load_keypoints2d, load_keypoints3d
-    from motiongen.capture.multiview import fit_multiview
-    from motiongen.capture.pose_prior import load_prior
-    from motiongen.staging import StagedOutputs
-
     cams = load_cameras(opts["cameras"])
     obs = load_keypoints2d(opts["keypoints2d"], cams.names, opts["layout"], opts["fps"])
     x3d = conf3d = None
@@ -89,20 +87,7 @@ def run(argv: list[str]) -> dict:
     bm = load_body_model(opts["body.model_path"], device=opts["device"])
     out = Path(opts["out"])
     out.mkdir(parents=True, exist_ok=True)
-    writer = None
-    if opts["tensorboard"]:
-        from torch.utils.tensorboard import SummaryWriter
-
-        writer = SummaryWriter(str(out / "tb"))
-    t0 = time.time()
-    try:
-        observed = obs.observed | ((conf3d > 0).any(0) if conf3d is not None else False)
-        res = fit_multiview(bm, cams, obs.uv, obs.conf, prior, cfg, x3d, conf3d, observed=observed, writer=writer)
-    finally:
-        if writer is not None:
-            writer.close()
-    seconds = time.time() - t0
-    T = obs.num_frames
+    res, seconds = _fit(bm, cams, obs, prior, cfg, x3d, conf3d, out / "tb" if opts["tensorboard"] else None)
     frame_err = nanmean(res.err3d, 1)                                                # (T,)
     fit = FitResult(global_orient=res.global_orient, body_pose=res.body_pose, transl=res.transl, betas=res.betas,
                     joints=res.joints, per_frame_error=frame_err, mpjpe_mlp=None, mpjpe_init=res.err3d_init,
@@ -118,28 +103,52 @@ def run(argv: list[str]) -> dict:
                      frame_err2d=nanmean(res.err2d, 2).astype(np.float32),
                      x3d=res.x3d.astype(np.float32), conf3d=res.conf3d.astype(np.float32),
                      camera_names=np.array(cams.names), joint_names=np.array(BODY_JOINT_NAMES))
-        report = {
-            "frames": T, "fps": obs.fps, "cameras": cams.names, "layout": obs.layout,
-            "keypoints3d": "given" if x3d is not None else "triangulated",
-            "triangulated_fraction": round(float((res.conf3d[:, obs.observed] > 0).mean()), 4),
-            "prior": prior.source, "body_model": str(bm.path), "procedural_body": bm.is_procedural,
-            "config": {k: opts[k] for k in SPEC if k not in ("cameras", "keypoints2d", "keypoints3d", "out")},
-            "err3d_init_cm": round(res.err3d_init * 100, 4), "err3d_cm": _summary(res.err3d, 100.0),
-            "err2d_px": {n: _summary(res.err2d[c], 1.0) for c, n in enumerate(cams.names)},
-            "stage_losses": {f"stage{s}": v for s, v in res.stage_losses.items()},
-            "evaluations": {f"stage{s}": n for s, n in res.evaluations.items()},
-            "seconds": {k: round(v, 3) for k, v in res.seconds.items()} | {"total": round(seconds, 3)},
-            "frames_per_second": round(T / seconds, 2)}
+        report = _report(opts, cams, obs, x3d is not None, prior, bm, res, seconds)
         staged.tmp("report.json").write_text(json.dumps(report, indent=2))
         staged.commit()
     except BaseException:
         staged.abort()
         raise
     e3, e2 = report["err3d_cm"], _summary(res.err2d, 1.0)
-    print(f"{T} frames x {len(cams)} cameras ({obs.layout}, 3D {report['keypoints3d']}): 3D error to targets "
-          f"{e3['mean']} cm mean (after the start {report['err3d_init_cm']} cm), 2D median {e2['median']} px; "
+    print(f"{obs.num_frames} frames x {len(cams)} cameras ({obs.layout}, 3D {report['keypoints3d']}): 3D error to "
+          f"targets {e3['mean']} cm mean (after the start {report['err3d_init_cm']} cm), 2D median {e2['median']} px; "
           f"{seconds:.1f} s ({report['frames_per_second']} frames/s) -> {out}", flush=True)
     return report
+
+
+def _fit(bm, cams, obs, prior, cfg: MultiviewConfig, x3d, conf3d, tb_dir: Path | None):
+    """`fit_multiview` on the loaded inputs, its per-stage losses to tensorboard in `tb_dir`
+    (None: none). Returns the result and the seconds the fit took."""
+    writer = None
+    if tb_dir is not None:
+        from torch.utils.tensorboard import SummaryWriter  # heavy to import; only with tensorboard=true
+
+        writer = SummaryWriter(str(tb_dir))
+    t0 = time.time()
+    try:
+        observed = obs.observed | ((conf3d > 0).any(0) if conf3d is not None else False)
+        res = fit_multiview(bm, cams, obs.uv, obs.conf, prior, cfg, x3d, conf3d, observed=observed, writer=writer)
+    finally:
+        if writer is not None:
+            writer.close()
+    return res, time.time() - t0
+
+
+def _report(opts: dict, cams, obs, given3d: bool, prior, bm, res, seconds: float) -> dict:
+    """report.json: inputs, settings, per-stage losses, timings and error summaries."""
+    T = obs.num_frames
+    return {
+        "frames": T, "fps": obs.fps, "cameras": cams.names, "layout": obs.layout,
+        "keypoints3d": "given" if given3d else "triangulated",
+        "triangulated_fraction": round(float((res.conf3d[:, obs.observed] > 0).mean()), 4),
+        "prior": prior.source, "body_model": str(bm.path), "procedural_body": bm.is_procedural,
+        "config": {k: opts[k] for k in SPEC if k not in ("cameras", "keypoints2d", "keypoints3d", "out")},
+        "err3d_init_cm": round(res.err3d_init * 100, 4), "err3d_cm": _summary(res.err3d, 100.0),
+        "err2d_px": {n: _summary(res.err2d[c], 1.0) for c, n in enumerate(cams.names)},
+        "stage_losses": {f"stage{s}": v for s, v in res.stage_losses.items()},
+        "evaluations": {f"stage{s}": n for s, n in res.evaluations.items()},
+        "seconds": {k: round(v, 3) for k, v in res.seconds.items()} | {"total": round(seconds, 3)},
+        "frames_per_second": round(T / seconds, 2)}
 
 
 main = tool_main(run)

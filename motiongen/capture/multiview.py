@@ -1,5 +1,5 @@
-"""Multi-view SMPL-X fitting in three stages (seed 000, A1), batched over frames on the fast
-joint kinematics (`BodyModel.joints`, no mesh per iteration).
+"""Multi-view SMPL-X fitting in three stages (the multi-view capture paper, A1), batched over
+frames on the fast joint kinematics (`BodyModel.joints`, no mesh per iteration).
 
 0. 3D targets: given, or triangulated from the 2D detections (`triangulate.py`).
    Root init: per frame, the rest template's shoulders and hips rigidly aligned to the
@@ -24,11 +24,13 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation, Slerp
 
 from motiongen.body._threads import torch_threads
+from motiongen.body.analytic import analytic_init
 from motiongen.body.model import BodyModel, BodyParams
 from motiongen.body.rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_rot6d, rot6d_to_matrix
 from motiongen.capture.cameras import Cameras
 from motiongen.capture.objective import SEED_STAGES, StageWeights, Targets, terms, total
 from motiongen.capture.pose_prior import PosePrior
+from motiongen.capture.triangulate import triangulate
 from motiongen.errors import ConfigError
 from motiongen.skeleton import BODY_JOINT_NAMES, NUM_BODY_JOINTS
 
@@ -148,9 +150,7 @@ def pose_init(bm: BodyModel, prior: PosePrior, x3d: np.ndarray, w3d: np.ndarray,
 
     Smoothing matters: L-BFGS removes jitter slowly (the smoothness term couples all frames),
     so a fit started from the noisy targets stays jittery for hundreds of iterations; one
-    started smooth adds the detail the data asks for within tens (docs/capture.md: figures)."""
-    from motiongen.body.analytic import analytic_init
-
+    started smooth adds the detail the data asks for within tens (docs/results.md: figures)."""
     X = fill_targets(bm, x3d, w3d, Rs, transl)
     if smooth > 0:
         X = gaussian_filter1d(X, smooth, axis=0, mode="nearest")
@@ -261,8 +261,6 @@ def fit_multiview(bm: BodyModel, cams: Cameras, uv: np.ndarray, conf: np.ndarray
     bool: the joints the keypoint layout has (default: those ever detected); writer: a
     TensorBoard SummaryWriter or None.
     """
-    from motiongen.capture.triangulate import triangulate
-
     if uv.ndim != 4 or uv.shape[0] != len(cams) or uv.shape[2:] != (NUM_BODY_JOINTS, 2) or conf.shape != uv.shape[:3]:
         raise ConfigError(f"detections: expected uv ({len(cams)}, T, {NUM_BODY_JOINTS}, 2) and conf (C, T, "
                           f"{NUM_BODY_JOINTS}), got {uv.shape} and {conf.shape}")

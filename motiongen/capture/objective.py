@@ -1,6 +1,6 @@
-"""The multi-view fitting objective of seed 000 (A1), term by term:
+"""The multi-view fitting objective of the multi-view capture paper (A1), term by term:
 
-    λ3D·L3D + λ2D·L2D + λz·Lz + λβ·Lβ + λsmooth·Lsmooth       (minimised; the seed's "arg max"
+    λ3D·L3D + λ2D·L2D + λz·Lz + λβ·Lβ + λsmooth·Lsmooth       (minimised; the paper's "arg max"
                                                               is a typo for arg min)
     L3D = 1/(TK) Σ_t Σ_k w_tk ‖x_tk − x̂_tk‖                   Euclidean, not squared
     L2D = 1/(TKC) Σ_t Σ_k Σ_c w_tkc φ(‖x_tkc − Π_c(x̂_tk)‖; ρ_tkc),  φ(r; ρ) = r² / (r² + ρ²)
@@ -8,18 +8,19 @@
     Lsmooth = 1/((T−2)K) Σ ‖x̂_t − 2x̂_{t+1} + x̂_{t+2}‖²
             + 1/((T−2)J) Σ ‖θ_t − 2θ_{t+1} + θ_{t+2}‖²
 
-Our readings of what the seed leaves open (docs/capture.md gives the reasons and figures):
+Our readings of what the paper leaves open (docs/capture.md gives the reasons, docs/results.md
+the figures):
 - w are the detections' confidences (0 = missed / not triangulated); K counts the keypoints
   the layout has, so a missing detection costs nothing rather than changing the scale.
-- The seed's L3D also sums over cameras c although nothing in it depends on c: a constant
+- The paper's L3D also sums over cameras c although nothing in it depends on c: a constant
   factor C, which we drop (it would only rescale λ3D).
-- Units: lengths in `length_unit` metres (default 0.02). The seed's weights fix the balance
+- Units: lengths in `length_unit` metres (default 0.02). The paper's weights fix the balance
   between terms only once units are chosen: L3D scales as 1/unit, Lsmooth's keypoint part as
   1/unit², Lz not at all, so a large unit hands the fit to the pose prior and a small one to
-  the smoothness term. docs/capture.md gives the measurements behind 2 cm.
+  the smoothness term. docs/results.md gives the measurements behind 2 cm.
 - ρ is given as a length at the subject (`rho`, metres) and turned into pixels per camera
   and keypoint: ρ_tkc = ρ·f_c / depth_tkc (f_c the focal length in pixels). φ is then
-  the seed's φ in pixels, and a near camera (a big person in the image) and a far one get the
+  the paper's φ in pixels, and a near camera (a big person in the image) and a far one get the
   same tolerance in space — what EasyMocap gets by dividing residuals by the person's
   bounding-box size.
 - ‖·‖ in L3D is smoothed as sqrt(d² + ε²) − ε (ε = `EPS` units) so that gradients exist at 0.
@@ -48,7 +49,7 @@ class StageWeights:
     betas: float
 
 
-# Seed 000, A1. β is frozen after stage 1, so λβ has no effect in stages 2 and 3.
+# The multi-view capture paper, A1. β is frozen after stage 1, so λβ has no effect in stages 2 and 3.
 SEED_STAGES = {1: StageWeights(w3d=5.0, w2d=0.0, smooth=0.1, z=0.005, betas=0.04),
                2: StageWeights(w3d=5.0, w2d=0.0, smooth=2.5, z=0.1, betas=0.04),
                3: StageWeights(w3d=1.6, w2d=0.5, smooth=10.0, z=0.01, betas=0.04)}

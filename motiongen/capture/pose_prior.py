@@ -1,13 +1,14 @@
-"""A Gaussian pose prior with a linear decoder: the seed's θ = V(z), L_z = ‖z‖².
+"""A Gaussian pose prior with a linear decoder: θ = V(z), L_z = ‖z‖² of the multi-view capture
+paper.
 
-Seed 000 optimises a latent z per frame and decodes the 21 body-joint rotations with a
+The paper optimises a latent z per frame and decodes the 21 body-joint rotations with a
 pretrained VAE (VPoser). We ship no VAE. Its linear-Gaussian special case is PCA: with the
 mean μ, the principal directions U (d, 63) and standard deviations σ (d,) of axis-angle body
 poses,
 
     θ = V(z) = μ + (σ ⊙ z) U,      z ~ N(0, I),
 
-so ‖z‖² is the Mahalanobis distance of θ from the pose distribution: the seed's L_z term
+so ‖z‖² is the Mahalanobis distance of θ from the pose distribution: the paper's L_z term
 penalises unusual poses exactly as a standard-normal latent does. By default all 63
 directions are kept (d = 63, a full-rank Gaussian) and σ is floored at `min_std`, so no pose
 is out of reach, only more expensive; `dims` < 63 restricts poses to a subspace.
@@ -31,8 +32,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from motiongen.body.random_motion import sample_motion
 from motiongen.cli import parse_key_values, tool_main
+from motiongen.data.format import MotionDataset
 from motiongen.errors import ConfigError, DataError
+from motiongen.importers.amass import load_amass
 
 FORMAT = "motiongen-pose-prior"
 POSE_DIM = 63
@@ -106,8 +110,6 @@ def fit_prior(poses: np.ndarray, dims: int | None = None, min_std: float = DEFAU
 def default_prior(min_std: float = DEFAULT_MIN_STD, dims: int | None = None) -> PosePrior:
     """The built-in prior: PCA of `sample_motion` poses (fixed seed; about 0.5 s, cached in the
     process: treat the result as read-only)."""
-    from motiongen.body.random_motion import sample_motion
-
     rng = np.random.default_rng(DEFAULT_SEED)
     poses = [sample_motion(DEFAULT_FRAMES, 30.0, rng)["body_pose"] for _ in range(DEFAULT_SEQUENCES)]
     return fit_prior(np.concatenate(poses), dims, min_std,
@@ -148,8 +150,6 @@ USAGE = ("motiongen pose-prior out=prior.npz "
 
 
 def _poses_from_dataset(root: str) -> np.ndarray:
-    from motiongen.data.format import MotionDataset
-
     ds = MotionDataset.open(root)
     if not ds.meta.get("has_smplx"):
         raise DataError(Path(root) / "meta.json", "has_smplx", "the dataset has no SMPL-X poses "
@@ -158,8 +158,6 @@ def _poses_from_dataset(root: str) -> np.ndarray:
 
 
 def _poses_from_amass(path: str) -> np.ndarray:
-    from motiongen.importers.amass import load_amass
-
     return load_amass(path).body_pose
 
 

@@ -188,58 +188,18 @@ def process(rec: SensorRecording, video_fps: float, clap_frames, *, frames: np.n
     positions to label (default: every frame the recording covers), each covering
     ±half_width frames. thresholds: per channel, a reading or None (proposed). mask_claps:
     no hand contact within clap_guard s of the two claps (on the clap channels)."""
-    C = rec.values.shape[1]
     if not video_fps > 0:
         raise ConfigError(f"video_fps must be positive, got {video_fps}")
     f0, f1 = (float(f) for f in clap_frames)
     if not f1 > f0:
         raise ConfigError(f"clap_frames=[{f0:g},{f1:g}]: the end clap's frame must come after the start clap's")
-    candidates = np.zeros(0, np.int64)
     hands = [c for c, j in enumerate(rec.joints) if j in HAND_JOINT_NAMES]
-    chans = clap_channels if clap_channels else (hands or list(range(C)))
-    if clap_samples is not None:
-        i0, i1 = (int(i) for i in clap_samples)
-        if not 0 <= i0 < i1 < len(rec.time):
-            raise ConfigError(f"clap_samples=[{i0},{i1}]: expected two increasing sample rows in "
-                              f"0..{len(rec.time) - 1}")
-    else:
-        candidates = find_claps(rec, chans, clap_height, clap_max_width)
-        if len(candidates) < 2:
-            raise DataError(rec.path, ",".join(rec.channels[c] for c in chans),
-                            f"found {len(candidates)} clap peak(s) (sampling at {rec.rate:.3g} Hz, time in "
-                            f"{rec.time_unit}), need a start and an end clap: pass "
-                            "clap_samples=[I0,I1] (the two rows), or clap_channels= / clap_height= / clap_max_width=")
-        i0, i1 = int(candidates[0]), int(candidates[-1])
-    clock = ClockMap(float(rec.time[i0]), float(rec.time[i1]), f0, f1, float(video_fps))
-    if abs(clock.drift - 1) > max_drift:
-        raise DataError(rec.path, "claps", f"the claps are {clock.t1 - clock.t0:.3f} s apart in the recording (rows "
-                                           f"{i0}, {i1}) but {(f1 - f0) / video_fps:.3f} s in the video (frames "
-                                           f"{f0:g}, {f1:g} at {video_fps:g} fps): check clap_frames, video_fps, "
-                                           f"the time unit, or the clap rows (max_drift={max_drift:g})")
-    covered = covered_frames(rec, clock)
-    if len(covered) == 0:
-        raise DataError(rec.path, None, "the recording covers no video frame")
-    if frames is None:
-        frames = covered
-    else:
-        frames = np.asarray(frames, np.float64)
-        first, last = clock.frame_of(rec.time[[0, -1]])
-        if frames.min() < first - 1e-6 or frames.max() > last + 1e-6:
-            raise DataError(rec.path, None, f"the frames to label, video frames {frames.min():g}..{frames.max():g}, "
-                                            f"reach outside the recording, which covers video frames "
-                                            f"{first:.1f}..{last:.1f} (check frame_offset and clap_frames)")
+    chans = clap_channels if clap_channels else (hands or list(range(rec.values.shape[1])))
+    i0, i1, candidates = _clap_rows(rec, chans, clap_samples, clap_height, clap_max_width)
+    clock = _clock(rec, i0, i1, f0, f1, float(video_fps), max_drift)
+    frames = _frames_to_label(rec, clock, frames)
     signal = resample(rec, clock, frames, half_width, resample_method)          # (F, C)
-    # Thresholds come from the trial (between the claps, away from them): the claps' spikes
-    # and whatever happens before and after the trial are not contact levels.
-    a = int(np.searchsorted(rec.time, clock.t0 + clap_guard, side="right"))
-    b = int(np.searchsorted(rec.time, clock.t1 - clap_guard, side="left"))
-    if b <= a:
-        a, b = i0 + 1, i1
-    given = thresholds if thresholds is not None else [None] * C
-    if len(given) != C:
-        raise ConfigError(f"thresholds: expected {C} entries (one per sensor column), got {len(given)}")
-    th = [Threshold(float(v), "given") if v is not None
-          else propose_threshold(rec.values[a:b, c], rec.adc_max, min_contrast) for c, v in enumerate(given)]
+    th, trial = _thresholds(rec, clock, (i0, i1), clap_guard, thresholds, min_contrast)
     raw = signal > np.array([t.value for t in th])[None]
     if mask_claps:
         # The claps press the hand sensors against each other, not against the scene.
@@ -254,7 +214,75 @@ def process(rec: SensorRecording, video_fps: float, clap_frames, *, frames: np.n
                 "min_gap_frames": min_gap_frames, "clap_height": clap_height, "clap_max_width": clap_max_width,
                 "mask_claps": mask_claps, "clap_channels": [rec.channels[c] for c in chans]}
     return SensorContact(frames, signal, contact, raw, th, clock, (i0, i1), candidates, clap_samples is None,
-                         (a, b), settings)
+                         trial, settings)
+
+
+def _clap_rows(rec: SensorRecording, chans: list[int], clap_samples, clap_height: float,
+               clap_max_width: float) -> tuple[int, int, np.ndarray]:
+    """Rows (i0, i1) of the start and end claps: `clap_samples` when given, else the first and
+    last clap-like peak on channels `chans`; and every peak found (K,) (empty when given)."""
+    candidates = np.zeros(0, np.int64)
+    if clap_samples is not None:
+        i0, i1 = (int(i) for i in clap_samples)
+        if not 0 <= i0 < i1 < len(rec.time):
+            raise ConfigError(f"clap_samples=[{i0},{i1}]: expected two increasing sample rows in "
+                              f"0..{len(rec.time) - 1}")
+        return i0, i1, candidates
+    candidates = find_claps(rec, chans, clap_height, clap_max_width)
+    if len(candidates) < 2:
+        raise DataError(rec.path, ",".join(rec.channels[c] for c in chans),
+                        f"found {len(candidates)} clap peak(s) (sampling at {rec.rate:.3g} Hz, time in "
+                        f"{rec.time_unit}), need a start and an end clap: pass "
+                        "clap_samples=[I0,I1] (the two rows), or clap_channels= / clap_height= / clap_max_width=")
+    return int(candidates[0]), int(candidates[-1]), candidates
+
+
+def _clock(rec: SensorRecording, i0: int, i1: int, f0: float, f1: float, video_fps: float,
+           max_drift: float) -> ClockMap:
+    """The clock map from clap rows (i0, i1) to clap frames (f0, f1), refused when the two
+    clocks disagree by more than `max_drift`."""
+    clock = ClockMap(float(rec.time[i0]), float(rec.time[i1]), f0, f1, video_fps)
+    if abs(clock.drift - 1) > max_drift:
+        raise DataError(rec.path, "claps", f"the claps are {clock.t1 - clock.t0:.3f} s apart in the recording (rows "
+                                           f"{i0}, {i1}) but {(f1 - f0) / video_fps:.3f} s in the video (frames "
+                                           f"{f0:g}, {f1:g} at {video_fps:g} fps): check clap_frames, video_fps, "
+                                           f"the time unit, or the clap rows (max_drift={max_drift:g})")
+    return clock
+
+
+def _frames_to_label(rec: SensorRecording, clock: ClockMap, frames: np.ndarray | None) -> np.ndarray:
+    """(F,) video frame positions: `frames`, checked to lie within the recording, or (None)
+    every frame it covers."""
+    covered = covered_frames(rec, clock)
+    if len(covered) == 0:
+        raise DataError(rec.path, None, "the recording covers no video frame")
+    if frames is None:
+        return covered
+    frames = np.asarray(frames, np.float64)
+    first, last = clock.frame_of(rec.time[[0, -1]])
+    if frames.min() < first - 1e-6 or frames.max() > last + 1e-6:
+        raise DataError(rec.path, None, f"the frames to label, video frames {frames.min():g}..{frames.max():g}, "
+                                        f"reach outside the recording, which covers video frames "
+                                        f"{first:.1f}..{last:.1f} (check frame_offset and clap_frames)")
+    return frames
+
+
+def _thresholds(rec: SensorRecording, clock: ClockMap, clap_rows: tuple[int, int], clap_guard: float,
+                thresholds: list[float | None] | None, min_contrast: float) -> tuple[list[Threshold], tuple[int, int]]:
+    """Per channel the given threshold or one proposed from the trial, and the trial's rows [a, b)."""
+    C = rec.values.shape[1]
+    # Thresholds come from the trial (between the claps, away from them): the claps' spikes
+    # and whatever happens before and after the trial are not contact levels.
+    a = int(np.searchsorted(rec.time, clock.t0 + clap_guard, side="right"))
+    b = int(np.searchsorted(rec.time, clock.t1 - clap_guard, side="left"))
+    if b <= a:
+        a, b = clap_rows[0] + 1, clap_rows[1]
+    given = thresholds if thresholds is not None else [None] * C
+    if len(given) != C:
+        raise ConfigError(f"thresholds: expected {C} entries (one per sensor column), got {len(given)}")
+    th = [Threshold(float(v), "given") if v is not None
+          else propose_threshold(rec.values[a:b, c], rec.adc_max, min_contrast) for c, v in enumerate(given)]
+    return th, (a, b)
 
 
 def joint_contact(contact: np.ndarray, joints: list[str], names) -> np.ndarray:

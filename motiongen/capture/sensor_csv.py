@@ -1,4 +1,4 @@
-"""Reading contact-sensor recordings (seed 000, A2): a CSV with a time column and one column
+"""Reading contact-sensor recordings (the multi-view capture paper, A2): a CSV with a time column and one column
 of raw analog readings (an Arduino's 10-bit ADC: 0-1023) per force-sensitive resistor.
 
     time_ms,left_hand,right_hand,left_foot:heel,left_foot:toe,right_foot

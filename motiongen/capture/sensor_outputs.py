@@ -1,5 +1,5 @@
-"""What `contact_sensors` writes: `contact.npz`, `report.json`, the check plot (the seed's
-Fig. 2: raw traces, dashed per-sensor thresholds, shaded contact, the clap events) and the
+"""What `contact_sensors` writes: `contact.npz`, `report.json`, the check plot (the multi-view
+capture paper's Fig. 2: raw traces, dashed per-sensor thresholds, shaded contact, the clap events) and the
 contact labels of a dataset sequence (`contact.npy`, replaced atomically)."""
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import numpy as np
 
 from motiongen.capture.sensor_contact import SensorContact, joint_contact
 from motiongen.capture.sensor_csv import SensorRecording
+from motiongen.data.format import MotionDataset
 from motiongen.errors import DataError
 from motiongen.skeleton import JOINT_SETS
 from motiongen.spans import true_runs
@@ -84,11 +85,13 @@ def plot_sensors(path: Path, rec: SensorRecording, res: SensorContact, dpi: int 
     """One row per sensor: the raw trace against video frames, its threshold (dashed), the
     labelled contact (shaded), the clap events (dotted); on the right the histogram of the
     trial's readings the threshold was chosen from."""
+    # Imported here, when plotting (plot=false skips it): matplotlib is heavy (~0.5 s), and choosing
+    # its backend on import would change it for every program importing motiongen.
     import matplotlib
 
     matplotlib.use("Agg", force=False)
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # heavy, as above
+    from matplotlib.figure import Figure  # heavy, as above
 
     C = rec.values.shape[1]
     fig = Figure(figsize=(11, 1.0 + 1.7 * C), dpi=dpi)
@@ -145,8 +148,6 @@ def dataset_frames(root: str | Path, sequence: str, video_fps: float, frame_offs
                    rec: SensorRecording) -> DatasetTarget:
     """Where a dataset sequence's frames lie in the video: frame k at video frame
     frame_offset + k * video_fps / dataset fps. Checks that the dataset has the sensors' joints."""
-    from motiongen.data.format import MotionDataset
-
     ds = MotionDataset.open(root, check_values=False)
     seq = next((s for s in ds.sequences if s.name == sequence), None)
     if seq is None:

@@ -10,6 +10,7 @@ not grow with the dataset. This module holds the layout's constants and the read
 from __future__ import annotations
 
 import json
+import mmap
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -84,7 +85,6 @@ def release(a: np.ndarray) -> None:
     if mm is None and isinstance(getattr(a, "base", None), np.memmap):
         mm = getattr(a.base, "_mmap", None)
     if mm is not None and hasattr(mm, "madvise"):
-        import mmap
         try:
             mm.madvise(mmap.MADV_DONTNEED)
         except (OSError, ValueError):
@@ -161,7 +161,7 @@ class MotionDataset:
         if not entry.get("mesh"):
             return None
         if scene not in self._meshes:
-            import trimesh
+            import trimesh  # slow to import; only datasets with scene meshes need it
             self._meshes[scene] = trimesh.load(self.root / entry["mesh"], force="mesh", process=False)
         return self._meshes[scene]
 
@@ -176,7 +176,7 @@ class MotionDataset:
         entry = self.objects.get(object_id) or {}
         if not entry.get("mesh"):
             return None
-        import trimesh
+        import trimesh  # slow to import; only datasets with object meshes need it
         return trimesh.load(self.root / entry["mesh"], force="mesh", process=False)
 
     @classmethod
@@ -185,111 +185,139 @@ class MotionDataset:
         root = Path(root)
         if not root.is_dir():
             raise DataError(root, None, "dataset directory does not exist")
-        meta_path = root / "meta.json"
-        meta = _read_json(meta_path, "dataset metadata")
-        if not isinstance(meta, dict) or meta.get("format") != FORMAT_NAME:
-            raise DataError(meta_path, "format", f"expected {FORMAT_NAME!r}, found {meta.get('format') if isinstance(meta, dict) else type(meta).__name__!r}")
-        if meta.get("version") != FORMAT_VERSION:
-            raise DataError(meta_path, "version", f"expected {FORMAT_VERSION}, found {meta.get('version')!r}")
-        for key in ("fps", "num_frames", "joint_names", "actions", "num_object_slots", "has_smplx"):
-            if key not in meta:
-                raise DataError(meta_path, key, "required key is missing")
-        if not (isinstance(meta["fps"], (int, float)) and meta["fps"] > 0):
-            raise DataError(meta_path, "fps", f"expected a positive number, found {meta['fps']!r}")
-        try:
-            joint_set_for(meta["joint_names"])
-        except Exception as e:
-            raise DataError(meta_path, "joint_names", str(e)) from None
-        for key in ("num_frames", "num_object_slots"):
-            if not (isinstance(meta[key], int) and not isinstance(meta[key], bool) and meta[key] >= 0):
-                raise DataError(meta_path, key, f"expected a non-negative integer, found {meta[key]!r}")
-        if not isinstance(meta["has_smplx"], bool):
-            raise DataError(meta_path, "has_smplx", f"expected true or false, found {meta['has_smplx']!r}")
-        if not (isinstance(meta["actions"], list) and all(isinstance(a, str) for a in meta["actions"])):
-            raise DataError(meta_path, "actions", f"expected a list of strings, found {meta['actions']!r}")
+        meta = _read_meta(root / "meta.json")
         N, J, A, K = meta["num_frames"], len(meta["joint_names"]), len(meta["actions"]), meta["num_object_slots"]
-
-        def arr(name: str, shape: tuple, dtype) -> np.ndarray:
-            path = root / f"{name}.npy"
-            a = load_npy(path, name)
-            if a.shape != shape:
-                raise DataError(path, name, f"expected shape {shape}, found {a.shape}")
-            if a.dtype != np.dtype(dtype):
-                raise DataError(path, name, f"expected dtype {np.dtype(dtype)}, found {a.dtype}")
-            if check_values and a.dtype.kind == "f":
-                bad = _all_finite_chunked(a)
-                if bad >= 0:
-                    raise DataError(path, name, f"non-finite value (NaN or inf) at frame {bad}")
-            return a
-
-        joints = arr("joints", (N, J, 3), np.float32)
-        scene_id = arr("scene_id", (N,), np.int32)
-        contact = arr("contact", (N, J), bool)
-        actions = arr("actions", (N, A), bool)
+        joints = _read_array(root, "joints", (N, J, 3), np.float32, check_values)
+        scene_id = _read_array(root, "scene_id", (N,), np.int32, check_values)
+        contact = _read_array(root, "contact", (N, J), bool, check_values)
+        actions = _read_array(root, "actions", (N, A), bool, check_values)
         object_poses = object_ids = None
         if K:
-            object_poses = arr("object_poses", (N, K, 4, 4), np.float32)
-            object_ids = arr("object_ids", (N, K), np.int32)
+            object_poses = _read_array(root, "object_poses", (N, K, 4, 4), np.float32, check_values)
+            object_ids = _read_array(root, "object_ids", (N, K), np.int32, check_values)
         smplx = None
         if meta["has_smplx"]:
-            smplx = {k: arr(f"smplx_{k}", (N, d), np.float32) for k, d in SMPLX_FIELDS.items()}
-
-        seq_path = root / "sequences.json"
-        raw_seqs = _read_json(seq_path, "sequence list")
-        try:
-            sequences = [Sequence(str(s["name"]), int(s["start"]), int(s["end"]), int(s["scene"])) for s in raw_seqs]
-        except (KeyError, TypeError, ValueError) as e:
-            raise DataError(seq_path, None, f"each entry needs name, start, end, scene ({e})") from None
-        pos = 0
-        for s in sequences:
-            if s.start != pos or s.end <= s.start:
-                raise DataError(seq_path, s.name, f"sequences must tile the frames in order: expected start {pos} "
-                                                  f"and end > start, found [{s.start}, {s.end})")
-            pos = s.end
-        if pos != N:
-            raise DataError(seq_path, None, f"sequences cover {pos} frames, meta.json says {N}")
-
-        scenes_path = root / "scenes.json"
-        scenes = _read_index(scenes_path, "scene index")
+            smplx = {k: _read_array(root, f"smplx_{k}", (N, d), np.float32, check_values) for k, d in SMPLX_FIELDS.items()}
+        sequences = _read_sequences(root / "sequences.json", N)
+        scenes = _read_index(root / "scenes.json", "scene index")
         objects = _read_index(root / "objects.json", "object index")
-        for sid, entry in scenes.items():
-            for key in ("grid", "mesh"):
-                if entry.get(key):
-                    # a grid is two files (<stem>.occ.npy + .occ.json); both must be there
-                    for suffix in ((".occ.npy", ".occ.json") if key == "grid" else ("",)):
-                        p = root / (entry[key] + suffix)
-                        if not p.is_file():
-                            raise DataError(p, f"scene {sid} {key}", "file listed in scenes.json is missing")
-        for oid, entry in objects.items():
-            if entry.get("mesh") and not (root / entry["mesh"]).is_file():
-                raise DataError(root / entry["mesh"], f"object {oid}", "file listed in objects.json is missing")
+        _check_listed_files(root, scenes, objects)
         if check_values:
-            for s in sequences:
-                if s.scene not in scenes:
-                    raise DataError(seq_path, s.name, f"scene id {s.scene} is not in scenes.json")
-                ids = np.asarray(scene_id[s.start:s.end])
-                if not (ids == s.scene).all():
-                    n = s.start + int(np.argmax(ids != s.scene))
-                    raise DataError(root / "scene_id.npy", "scene_id", f"frame {n} has scene id {int(scene_id[n])}, "
-                                                                      f"but frames of sequence {s.name!r} must all "
-                                                                      f"carry its scene id {s.scene}")
-            release(scene_id)
+            _check_scene_ids(root, sequences, scenes, scene_id)
             if K:
                 bad = _bad_object_id(object_ids, set(objects))
                 if bad is not None:
                     raise DataError(root / "object_ids.npy", "object_ids", f"object id {bad} is not in objects.json")
-        split_map = splits if splits is not None else meta.get("splits", DEFAULT_SPLITS)
-        try:
-            split_map = {str(k): [int(i) for i in v] for k, v in split_map.items()}
-        except (AttributeError, TypeError, ValueError):
-            raise DataError(meta_path if splits is None else "splits argument", "splits", f"expected an object of split name -> list of scene ids, "
-                                                 f"found {split_map!r:.80}") from None
+        split_map = _split_map(splits, meta, root / "meta.json")
         return cls(root, meta, sequences, joints, scene_id, contact, actions, object_poses, object_ids, smplx,
                    scenes, objects, split_map)
 
     def iter_sequences(self, split: str | None = None) -> Iterator[tuple[Sequence, np.ndarray]]:
         for s in self.split_sequences(split):
             yield s, np.asarray(self.joints[s.start:s.end])
+
+
+# ---------------------------------------------------------------------------------------
+# The checks `MotionDataset.open` makes, file by file
+
+
+def _read_meta(meta_path: Path) -> dict:
+    """meta.json, with its format, version and required keys checked."""
+    meta = _read_json(meta_path, "dataset metadata")
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT_NAME:
+        raise DataError(meta_path, "format", f"expected {FORMAT_NAME!r}, found {meta.get('format') if isinstance(meta, dict) else type(meta).__name__!r}")
+    if meta.get("version") != FORMAT_VERSION:
+        raise DataError(meta_path, "version", f"expected {FORMAT_VERSION}, found {meta.get('version')!r}")
+    for key in ("fps", "num_frames", "joint_names", "actions", "num_object_slots", "has_smplx"):
+        if key not in meta:
+            raise DataError(meta_path, key, "required key is missing")
+    if not (isinstance(meta["fps"], (int, float)) and meta["fps"] > 0):
+        raise DataError(meta_path, "fps", f"expected a positive number, found {meta['fps']!r}")
+    try:
+        joint_set_for(meta["joint_names"])
+    except Exception as e:
+        raise DataError(meta_path, "joint_names", str(e)) from None
+    for key in ("num_frames", "num_object_slots"):
+        if not (isinstance(meta[key], int) and not isinstance(meta[key], bool) and meta[key] >= 0):
+            raise DataError(meta_path, key, f"expected a non-negative integer, found {meta[key]!r}")
+    if not isinstance(meta["has_smplx"], bool):
+        raise DataError(meta_path, "has_smplx", f"expected true or false, found {meta['has_smplx']!r}")
+    if not (isinstance(meta["actions"], list) and all(isinstance(a, str) for a in meta["actions"])):
+        raise DataError(meta_path, "actions", f"expected a list of strings, found {meta['actions']!r}")
+    return meta
+
+
+def _read_array(root: Path, name: str, shape: tuple, dtype, check_values: bool) -> np.ndarray:
+    """<name>.npy memory-mapped, with its shape, dtype and (check_values) finiteness checked."""
+    path = root / f"{name}.npy"
+    a = load_npy(path, name)
+    if a.shape != shape:
+        raise DataError(path, name, f"expected shape {shape}, found {a.shape}")
+    if a.dtype != np.dtype(dtype):
+        raise DataError(path, name, f"expected dtype {np.dtype(dtype)}, found {a.dtype}")
+    if check_values and a.dtype.kind == "f":
+        bad = _all_finite_chunked(a)
+        if bad >= 0:
+            raise DataError(path, name, f"non-finite value (NaN or inf) at frame {bad}")
+    return a
+
+
+def _read_sequences(seq_path: Path, N: int) -> list[Sequence]:
+    """sequences.json: entries that tile the N frames in order."""
+    raw_seqs = _read_json(seq_path, "sequence list")
+    try:
+        sequences = [Sequence(str(s["name"]), int(s["start"]), int(s["end"]), int(s["scene"])) for s in raw_seqs]
+    except (KeyError, TypeError, ValueError) as e:
+        raise DataError(seq_path, None, f"each entry needs name, start, end, scene ({e})") from None
+    pos = 0
+    for s in sequences:
+        if s.start != pos or s.end <= s.start:
+            raise DataError(seq_path, s.name, f"sequences must tile the frames in order: expected start {pos} "
+                                              f"and end > start, found [{s.start}, {s.end})")
+        pos = s.end
+    if pos != N:
+        raise DataError(seq_path, None, f"sequences cover {pos} frames, meta.json says {N}")
+    return sequences
+
+
+def _check_listed_files(root: Path, scenes: dict[int, dict], objects: dict[int, dict]) -> None:
+    """Every grid and mesh file that scenes.json and objects.json list exists."""
+    for sid, entry in scenes.items():
+        for key in ("grid", "mesh"):
+            if entry.get(key):
+                # a grid is two files (<stem>.occ.npy + .occ.json); both must be there
+                for suffix in ((".occ.npy", ".occ.json") if key == "grid" else ("",)):
+                    p = root / (entry[key] + suffix)
+                    if not p.is_file():
+                        raise DataError(p, f"scene {sid} {key}", "file listed in scenes.json is missing")
+    for oid, entry in objects.items():
+        if entry.get("mesh") and not (root / entry["mesh"]).is_file():
+            raise DataError(root / entry["mesh"], f"object {oid}", "file listed in objects.json is missing")
+
+
+def _check_scene_ids(root: Path, sequences: list[Sequence], scenes: dict[int, dict], scene_id: np.ndarray) -> None:
+    """Every sequence's scene is in scenes.json and every one of its frames carries its id."""
+    seq_path = root / "sequences.json"
+    for s in sequences:
+        if s.scene not in scenes:
+            raise DataError(seq_path, s.name, f"scene id {s.scene} is not in scenes.json")
+        ids = np.asarray(scene_id[s.start:s.end])
+        if not (ids == s.scene).all():
+            n = s.start + int(np.argmax(ids != s.scene))
+            raise DataError(root / "scene_id.npy", "scene_id", f"frame {n} has scene id {int(scene_id[n])}, "
+                                                              f"but frames of sequence {s.name!r} must all "
+                                                              f"carry its scene id {s.scene}")
+    release(scene_id)
+
+
+def _split_map(splits: dict | None, meta: dict, meta_path: Path) -> dict[str, list[int]]:
+    """{split name: scene ids}: `splits` when given, else meta.json's, else the defaults."""
+    split_map = splits if splits is not None else meta.get("splits", DEFAULT_SPLITS)
+    try:
+        return {str(k): [int(i) for i in v] for k, v in split_map.items()}
+    except (AttributeError, TypeError, ValueError):
+        raise DataError(meta_path if splits is None else "splits argument", "splits", f"expected an object of split name -> list of scene ids, "
+                                             f"found {split_map!r:.80}") from None
 
 
 def _bad_object_id(ids: np.ndarray, known: set[int]) -> int | None:

@@ -9,7 +9,7 @@ docs/CONTRACTS.md.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import torch
@@ -19,6 +19,8 @@ from motiongen.data.format import MotionDataset, release
 from motiongen.data.representation import DEFAULT_CONTACT_JOINTS, Layout, stance_labels
 from motiongen.errors import ConfigError, DataError
 from motiongen.geometry import canonical_frame, invert_rigid, transform_points
+from motiongen.scene.local_occupancy import LocalGridSpec, local_occupancy_np
+from motiongen.scene.voxelize import voxelize_mesh
 from motiongen.skeleton import PELVIS
 
 
@@ -41,6 +43,11 @@ class WindowConfig:
     representation: str = "absolute"
     contact_joints: tuple[str, ...] = DEFAULT_CONTACT_JOINTS
     stance_speed: float = 0.2
+
+    def __post_init__(self):
+        # Hydra (the `window` group) and checkpoints (a dict) hand over lists: tuples here.
+        self.grid_res, self.grid_lo, self.grid_hi = tuple(self.grid_res), tuple(self.grid_lo), tuple(self.grid_hi)
+        self.contact_joints = tuple(self.contact_joints)
 
     def span(self) -> int:
         """Frames of the source sequence one window covers."""
@@ -146,7 +153,6 @@ class WindowDataset(Dataset):
                               f"{self.layout.channels}")
         self.stance = dataset_stance(ds, self.layout, cfg.stance_speed)
         self._offsets = cfg.stride * np.arange(cfg.length)
-        from motiongen.scene.local_occupancy import LocalGridSpec
         self.spec = LocalGridSpec(tuple(cfg.grid_res), (cfg.grid_lo[0], cfg.grid_hi[0]),
                                   (cfg.grid_lo[1], cfg.grid_hi[1]), (cfg.grid_lo[2], cfg.grid_hi[2]))
         self._object_grids: dict[int, object] = {}                                  # object id -> grid (per worker)
@@ -176,7 +182,6 @@ class WindowDataset(Dataset):
     def _local_scene(self, frames: np.ndarray, local: np.ndarray, T: np.ndarray) -> np.ndarray:
         """(Hy, Hx, Hz) float32 occupancy around the goal pelvis, axes aligned with the window
         frame, with the objects present at the goal frame added. Height counts from the floor."""
-        from motiongen.scene.local_occupancy import local_occupancy_np
         goal = local[-1, PELVIS]
         at_goal = T.copy()
         at_goal[:3, 3] = T[:3, :3] @ np.array([goal[0], 0.0, goal[2]]) + T[:3, 3]        # goal (x, 0, z) in world
@@ -200,7 +205,6 @@ class WindowDataset(Dataset):
         return out
 
     def _voxelize_object(self, oid: int):
-        from motiongen.scene.voxelize import voxelize_mesh
         mesh = self.ds.object_mesh(oid)
         if mesh is None:
             return None
@@ -210,26 +214,3 @@ class WindowDataset(Dataset):
 
 def window_config_dict(cfg: WindowConfig) -> dict:
     return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()}
-
-
-@dataclass
-class WindowNode:
-    """Hydra-friendly mirror of WindowConfig (lists instead of tuples)."""
-
-    length: int = 16
-    stride: int = 3
-    hop: int = 1
-    scene: bool = True
-    objects: bool = True
-    outside_occupied: bool = True
-    grid_res: list = field(default_factory=lambda: [32, 32, 32])
-    grid_lo: list = field(default_factory=lambda: [-0.6, 0.0, -0.6])
-    grid_hi: list = field(default_factory=lambda: [0.6, 1.2, 0.6])
-    representation: str = "absolute"  # absolute | root (docs/models.md)
-    contact_joints: list = field(default_factory=lambda: list(DEFAULT_CONTACT_JOINTS))
-    stance_speed: float = 0.2
-
-    def to_window_config(self) -> WindowConfig:
-        return WindowConfig(self.length, self.stride, self.hop, self.scene, self.objects, self.outside_occupied,
-                            tuple(self.grid_res), tuple(self.grid_lo), tuple(self.grid_hi), self.representation,
-                            tuple(self.contact_joints), self.stance_speed)

@@ -15,6 +15,7 @@ from torch import Tensor
 
 from motiongen.diffusion.gaussian import GaussianDiffusion
 from motiongen.errors import ConfigError
+from motiongen.rates import DEFAULT_STEPS
 
 _FROM_CONFIG = object()
 
@@ -119,7 +120,7 @@ def _model_device(model) -> torch.device:
 @torch.no_grad()
 def sample(diffusion: GaussianDiffusion, model, shape: tuple[int, int, int], cond,
            known: Tensor | None = None, known_mask: Tensor | None = None, sampler: str = "ddim",
-           steps: int = 25, eta: float = 0.0, guidance_scale: float = 1.0,
+           steps: int = DEFAULT_STEPS, eta: float = 0.0, guidance_scale: float = 1.0,
            generator: torch.Generator | None = None, progress: bool = False,
            x_prior: Tensor | None = None, cfg_batched: bool = True, clip_x0=_FROM_CONFIG,
            device: torch.device | str | None = None, replace_mask: Tensor | None = None) -> Tensor:
@@ -136,7 +137,6 @@ def sample(diffusion: GaussianDiffusion, model, shape: tuple[int, int, int], con
     with the default cosine schedule ᾱ_T ≈ 2e-7 and this is N(0, I).
     The caller puts the model in eval mode.
     """
-    B = shape[0]
     if device is None:
         device = known.device if known is not None else _model_device(model)
     dtype = known.dtype if known is not None else torch.float32
@@ -146,8 +146,24 @@ def sample(diffusion: GaussianDiffusion, model, shape: tuple[int, int, int], con
         raise ValueError("sample: known values given without known_mask")
     scheduler = make_scheduler(diffusion, sampler, eta, clip_x0)
     scheduler.set_timesteps(steps)
+    predict = _predictor(model, cond, guidance_scale, cfg_batched, known_mask, shape[0], device)
+    x = _chain_start(diffusion, shape, known, known_mask, x_prior, generator, device, dtype)
+    timesteps = scheduler.timesteps.tolist()
+    if progress:
+        timesteps = _with_progress(timesteps, f"{sampler} {steps} steps")
+    for t in timesteps:
+        if known is not None:
+            x = torch.where(known_mask, known, x)
+        x = scheduler.step(predict(x, t), t, x, generator)
+    if known is not None:
+        x = torch.where(known_mask if replace_mask is None else replace_mask, known, x)
+    return x
 
-    # Encoders run once per call, not per step.
+
+def _predictor(model, cond, guidance_scale: float, cfg_batched: bool, known_mask: Tensor | None, B: int, device):
+    """predict(x (B, L, D), t) -> the model's output for x at timestep t, with classifier-free
+    guidance unless guidance_scale is 1 (the two passes in one batch when `cfg_batched` and the
+    encoded condition can `concat`). Encoders run here, once per call, not per step."""
     encode = getattr(model, "encode_condition", None)
     enc_c = encode(cond) if encode is not None else cond
     guided = guidance_scale != 1.0
@@ -173,24 +189,25 @@ def sample(diffusion: GaussianDiffusion, model, shape: tuple[int, int, int], con
             out_u = model(x, tt, enc_u, known_mask=known_mask)
         return out_u + guidance_scale * (out_c - out_u)
 
+    return predict
+
+
+def _chain_start(diffusion: GaussianDiffusion, shape: tuple[int, int, int], known: Tensor | None,
+                 known_mask: Tensor | None, x_prior: Tensor | None, generator: torch.Generator | None,
+                 device, dtype) -> Tensor:
+    """x_T (B, L, D) = √ᾱ_T·x_prior + √(1-ᾱ_T)·ε, known values pinned in x_prior."""
     ab_T = float(diffusion.alphas_cumprod[-1])
     prior = torch.zeros(shape, device=device, dtype=dtype) if x_prior is None else x_prior.to(device, dtype)
     if known is not None:
         prior = torch.where(known_mask, known, prior)
-    x = ab_T**0.5 * prior + (1 - ab_T) ** 0.5 * _randn(shape, generator, device, dtype)
+    return ab_T**0.5 * prior + (1 - ab_T) ** 0.5 * _randn(shape, generator, device, dtype)
 
-    timesteps = scheduler.timesteps.tolist()
-    if progress:
-        try:
-            from tqdm import tqdm
 
-            timesteps = tqdm(timesteps, desc=f"{sampler} {steps} steps")
-        except ImportError:
-            pass
-    for t in timesteps:
-        if known is not None:
-            x = torch.where(known_mask, known, x)
-        x = scheduler.step(predict(x, t), t, x, generator)
-    if known is not None:
-        x = torch.where(known_mask if replace_mask is None else replace_mask, known, x)
-    return x
+def _with_progress(timesteps: list[int], desc: str):
+    """The timesteps behind a progress bar, when tqdm is installed."""
+    try:
+        from tqdm import tqdm  # optional here: diffusion/ needs only torch; without tqdm, no bar
+
+        return tqdm(timesteps, desc=desc)
+    except ImportError:
+        return timesteps

@@ -7,10 +7,11 @@ from pathlib import Path
 from motiongen.bvh.retarget import import_bvh
 from motiongen.errors import ConfigError
 from motiongen import metrics as M
+from motiongen.rates import DATA_FPS
 from motiongen.skeleton import BODY
 
 
-def mocap_body_metrics(paths, fps: float = 30.0) -> dict:
+def mocap_body_metrics(paths, fps: float = DATA_FPS) -> dict:
     """The Body table's row for real mocap measured the same way: BVH clips through our
     importer (`motiongen.bvh.retarget.import_bvh`, 22 joints, y-up, 30 fps, lowest joint on the
     floor), per-clip metrics averaged (grounded slide: median over clips). paths: BVH files or

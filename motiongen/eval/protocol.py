@@ -25,11 +25,16 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+import torch
+from tqdm import tqdm
 
 from motiongen import metrics as M
+from motiongen.body.model import load_body_model
 from motiongen.eval.motion_scores import ReferenceResult, goal_metrics, motion_metrics, reference_metrics
 from motiongen.eval.pairs import SETTINGS, Pair, ProtocolConfig, make_pairs, pair_seed
 from motiongen.eval.scene_context import SceneContext
+from motiongen.rates import DATA_FPS
+from motiongen.sampling import LoopConfig, SamplerSettings, generate
 
 
 @dataclass
@@ -54,10 +59,6 @@ def body_vertices(bm, body, frames: int, every_frame: int = 3, every_vertex: int
 def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler, body_model=None) -> PairResult:
     """Sample k motions for one pair (one batch) and measure them (the output, and the network's
     own joints before they were put on a body)."""
-    import torch
-
-    from motiongen.sampling import LoopConfig, generate
-
     target = (pair.object_id, pair.object_pose) if pair.object_id is not None else None
     objs = ctx.objects_for_generate(target)
     dev = loaded.device if loaded.device.type != "mps" else torch.device("cpu")
@@ -171,11 +172,10 @@ def summarize_reference(refs: list[ReferenceResult], fps: float, cfg: ProtocolCo
     return out
 
 
-def episode_frames(loaded, out_fps: float = 30.0, source_fps: float = 30.0) -> int:
+def episode_frames(loaded, out_fps: float = DATA_FPS) -> int:
     """Output frames one autoregressive episode adds: (L - k) model frames at the output rate."""
-    win = loaded.window
     k = int(loaded.mask.max_transition)
-    return int(round((win.length - k) * out_fps / (source_fps / win.stride)))
+    return int(round((loaded.window.length - k) * out_fps / loaded.model_fps))
 
 
 @dataclass
@@ -197,12 +197,6 @@ def evaluate(loaded, ds, scene_ids, cfg: ProtocolConfig, settings=SETTINGS, samp
              progress: bool = True, log=None, body_model=None) -> Evaluation:
     """Run the protocol: pairs for every scene and setting, k samples each, the reference row.
     body_model: the motions' body model (default `load_body_model()`), also for skin penetration."""
-    from tqdm import tqdm
-
-    from motiongen.sampling import SamplerSettings
-
-    from motiongen.body.model import load_body_model
-
     t0 = time.perf_counter()
     sampler = sampler or SamplerSettings()
     body_model = body_model if body_model is not None else load_body_model()
@@ -236,7 +230,7 @@ def evaluate(loaded, ds, scene_ids, cfg: ProtocolConfig, settings=SETTINGS, samp
                 bar.update(1)
     finally:
         bar.close()
-    ep = episode_frames(loaded, ds.fps, ds.fps)
+    ep = episode_frames(loaded, ds.fps)
     refs = {st: [reference_metrics(ctxs[sid], st, cfg, ep) for sid in ctxs] for st in settings}
     ref_motions = [m for r in refs[settings[0]] for m in r.motions] if settings else []
     model = {st: summarize_model(results[st], ref_motions, ds.fps, cfg) for st in settings}

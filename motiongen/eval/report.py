@@ -1,6 +1,6 @@
-"""`evaluate.py`: run the protocol for a resolved config and write report.json, report.md and
-figures (every file written to a temp name in `out` and renamed when all are done), and log
-them to TensorBoard when `run_dir=` is given. docs/evaluation.md explains every column."""
+"""An evaluation's report: report.json, report.md and figures (every file written to a temp
+name in `out` and renamed when all are done), and TensorBoard scalars and figures.
+docs/evaluation.md explains every column; `motiongen evaluate` (motiongen/commands/) runs it."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from motiongen.errors import ConfigError, DataError
+from motiongen.eval.plots import plot_metric_bars, plot_scene_pairs
+from motiongen.eval.protocol import Evaluation
 from motiongen.staging import StagedOutputs
 
 # (key, label, unit, arrow): arrow says which way is better; "≈ref" = closer to the reference row.
@@ -143,8 +144,8 @@ def markdown(report: dict) -> str:
 
 def log_tensorboard(run_dir, report: dict, images: dict[str, Path], step: int) -> None:
     """Scalars eval/<setting>/<model|reference>/<metric> and the figures, at the checkpoint's step."""
-    import matplotlib.image as mpimg
-    from torch.utils.tensorboard import SummaryWriter
+    import matplotlib.image as mpimg  # matplotlib's image reader: only for run_dir=
+    from torch.utils.tensorboard import SummaryWriter  # TensorBoard loads its own stack: only for run_dir=
 
     w = SummaryWriter(log_dir=str(run_dir))
     try:
@@ -161,168 +162,41 @@ def log_tensorboard(run_dir, report: dict, images: dict[str, Path], step: int) -
         w.close()
 
 
-def _dataset_config(cfg, ckpt_config):
-    from omegaconf import OmegaConf
-
-    from motiongen.importers.sources import DataConfig
-
-    node = cfg.get("data") or (ckpt_config.get("data") if ckpt_config is not None else None)
-    if node is None:
-        return DataConfig()
-    d = OmegaConf.to_container(node, resolve=True) if not isinstance(node, dict) else dict(node)
-    fields = DataConfig.__dataclass_fields__
-    return DataConfig(**{k: v for k, v in d.items() if k in fields})
-
-
-# evaluate.py's loop keys: the sampler's clean-up switches and their types.
-LOOP_KEYS = {"project": bool, "foot_lock": bool, "pin_goal": bool, "smooth": float, "seam_blend": float,
-             "solve_smoothness": float}
-
-
-def loop_overrides(lc) -> dict:
-    """LoopConfig fields the user set (non-null `loop.*` keys), checked and typed."""
-    from omegaconf import OmegaConf
-
-    out = {}
-    for key, value in (OmegaConf.to_container(lc) if lc is not None else {}).items():
-        if value is None:
-            continue
-        kind = LOOP_KEYS.get(key)
-        if kind is None:
-            raise ConfigError(f"loop.{key}: not a clean-up key evaluate.py takes ({', '.join(LOOP_KEYS)})")
-        if kind is bool and not isinstance(value, bool) or kind is float and (
-                isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0):
-            want = "true or false" if kind is bool else "a number >= 0"
-            raise ConfigError(f"loop.{key}: expected {want}, got {value!r}")
-        out[key] = kind(value)
-    return out
-
-
-def run(cfg, default_out: Path) -> dict:
-    """The whole `evaluate.py` run for a resolved config. Returns the report dict."""
-    import torch
-    from omegaconf import OmegaConf
-
-    from motiongen.eval.pairs import SETTINGS, ProtocolConfig
-    from motiongen.eval.protocol import evaluate
-    from motiongen.sampling import SamplerSettings
-
-    if not cfg.get("ckpt"):
-        raise ConfigError("ckpt=PATH is required (a checkpoint written by train.py)")
-    ckpt = Path(str(cfg.ckpt))
-    if not ckpt.is_file():
-        raise DataError(ckpt, None, "checkpoint file does not exist")
-    settings = cfg.get("settings")
-    settings = [settings] if isinstance(settings, str) else list(OmegaConf.to_container(settings) if settings is not None else SETTINGS)
-    bad = [s for s in settings if s not in SETTINGS]
-    if bad or not settings:
-        raise ConfigError(f"settings: expected a non-empty subset of {list(SETTINGS)}, got {settings}")
-    sampler = SamplerSettings(str(cfg.sampler), int(cfg.steps), float(cfg.get("eta", 0.0)), float(cfg.guidance_scale))
-    if sampler.sampler not in ("ddpm", "ddim"):
-        raise ConfigError(f"sampler: expected ddpm or ddim, got {sampler.sampler!r}")
-    if sampler.steps < 1:
-        raise ConfigError(f"steps must be >= 1, got {sampler.steps}")
-    k, npairs = int(cfg.k), int(cfg.pairs)
-    if k < 1 or npairs < 1:
-        raise ConfigError(f"k and pairs must be >= 1, got k={k}, pairs={npairs}")
-    threads = int(cfg.get("threads") or 0)
-    if threads > 0:
-        torch.set_num_threads(threads)
-    device = str(cfg.device)
-    from motiongen.loading.build import load_model
-
-    loaded = load_model(ckpt, device, precision=str(cfg.get("precision") or "auto"))
-
-    from motiongen.importers.sources import open_dataset
-
-    dcfg = _dataset_config(cfg, loaded.config)
-    ds = open_dataset(dcfg, verbose=True)
-    test = [s for s in ds.splits.get("test", []) if s in ds.scenes]
-    if not test:
-        raise ConfigError(f"dataset {ds.root} has no test scenes (splits: "
-                          f"{ {k: len(v) for k, v in ds.splits.items()} }); set data.splits")
-    scenes = cfg.get("scenes")
-    if scenes is not None:
-        scenes = [scenes] if isinstance(scenes, (int, str)) else list(OmegaConf.to_container(scenes))
-        try:
-            scenes = [int(s) for s in scenes]
-        except (TypeError, ValueError):
-            raise ConfigError(f"scenes: expected a list of scene ids, got {scenes!r}") from None
-        unknown = [s for s in scenes if s not in test]
-        if unknown or not scenes:
-            raise ConfigError(f"scenes: {unknown or scenes} not among the test scenes of {ds.root} "
-                              f"({', '.join(str(s) for s in test)})")
-    else:
-        scenes = test
-    if set(loaded.joint_set.names) != set(ds.joint_set.names):
-        raise ConfigError(f"the checkpoint's joints ({len(loaded.joint_set.names)}) differ from the dataset's "
-                          f"({len(ds.joint_set.names)}): evaluate on the data it was trained on")
-
-    pc = ProtocolConfig(k=k, pairs=npairs, interaction_pairs=int(cfg.interaction_pairs),
-                        static_actions=tuple(OmegaConf.to_container(cfg.static_actions)),
-                        dynamic_action=str(cfg.dynamic_action), action_seconds=None if cfg.get("action_seconds") is None else float(cfg.action_seconds),
-                        min_distance=float(cfg.min_distance), body_radius=float(cfg.body_radius),
-                        subgoal_spacing=float(cfg.subgoal_spacing), max_episodes=int(cfg.max_episodes),
-                        seed=int(cfg.seed), pskl_frames=int(cfg.pskl_frames), loop=loop_overrides(cfg.get("loop")))
-    progress = bool(cfg.get("progress", True))
-    from motiongen.body.model import load_body_model
-
-    ev = evaluate(loaded, ds, scenes, pc, settings, sampler, progress=progress, log=lambda m: print(m, flush=True),
-                  body_model=load_body_model(cfg.get("body_model")))
-
-    meta = {"ckpt": str(ckpt), "step": loaded.step, "dataset": str(ds.root), "scenes": scenes, "k": k,
-            "pairs": npairs, "sampler": sampler.sampler, "steps": sampler.steps, "eta": sampler.eta,
-            "guidance_scale": sampler.guidance_scale, "seed": int(cfg.seed), "settings": settings,
-            "protocol": {k_: (list(v) if isinstance(v, tuple) else v) for k_, v in pc.__dict__.items()},
-            "device": device, "precision": loaded.precision, "torch_threads": torch.get_num_threads(), "goal_pinned": not loaded.predict_goal}
-    if cfg.get("mocap"):
-        from motiongen.eval.mocap import mocap_body_metrics
-
-        m = cfg.mocap
-        meta["mocap_row"] = mocap_body_metrics([m] if isinstance(m, str) else list(OmegaConf.to_container(m)), ds.fps)
-    report = build_report(ev, meta)
-    report["meta"].pop("mocap_row", None)
-    md = markdown(report)
-
-    out = Path(cfg.out) if cfg.get("out") else Path(default_out)
+def write_report(out: Path, report: dict, md: str, ev: Evaluation, title: str, plots: bool = True) -> tuple[list[Path], dict[str, Path]]:
+    """report.json, report.md and (plots) the figures in `out`, staged and renamed together:
+    (the files written, {TensorBoard tag: figure})."""
     out.mkdir(parents=True, exist_ok=True)
     stage = StagedOutputs(out)
-    images: dict[str, Path] = {}
     try:
-        if bool(cfg.get("plots", True)):
-            from motiongen.eval.plots import plot_metric_bars, plot_scene_pairs
-
-            spec = [(k_, lab, u, a) for k_, lab, u, a in METRICS]
-            for st in settings:
-                block = report["settings"][st]
-                if not block["pairs"]:
-                    continue
-                name = f"plots/{st}_metrics.png"
-                plot_metric_bars(stage.tmp(name), {label: block.get(key) or {} for key, label in ROWS},
-                                 [x for x in spec if st == "dynamic" or x[0] not in DYNAMIC_ONLY],
-                                 title=f"{st} setting: model vs reference")
-                images[f"{st}/metrics"] = out / name
-                for sid in scenes:
-                    rs = [r for r in ev.results[st] if r.pair.scene == sid]
-                    if rs:
-                        name = f"plots/{st}_scene{sid}.png"
-                        plot_scene_pairs(stage.tmp(name), ev.contexts[sid].fmap, rs,
-                                         title=f"{st} — scene {sid} — {ckpt.name} step {loaded.step}")
-                        images[f"{st}/scene{sid}"] = out / name
+        images = plot_figures(stage, out, report, ev, title) if plots else {}
         stage.tmp("report.json").write_text(json.dumps(report, indent=1, ensure_ascii=False))
         stage.tmp("report.md").write_text(md)
-        written = stage.commit()
+        return stage.commit(), images
     except BaseException:
         stage.abort()
         raise
-    if cfg.get("run_dir"):
-        report["_markdown"] = md
-        log_tensorboard(Path(str(cfg.run_dir)), report, images, loaded.step)
-        report.pop("_markdown")
-    print(md, flush=True)
-    print(f"wrote {len(written)} files to {out} (report.json, report.md, plots/)" +
-          (f"; logged to TensorBoard in {cfg.run_dir}" if cfg.get("run_dir") else ""), flush=True)
-    return report
 
 
-__all__ = ["METRICS", "build_report", "markdown", "log_tensorboard", "loop_overrides", "run"]
+def plot_figures(stage: StagedOutputs, out: Path, report: dict, ev: Evaluation, title: str) -> dict[str, Path]:
+    """plots/<setting>_metrics.png (each row's metrics) and plots/<setting>_scene<id>.png (the
+    pairs' tracks) for every setting with pairs; `title` ends each scene figure's title."""
+    images: dict[str, Path] = {}
+    for st in ev.settings:
+        block = report["settings"][st]
+        if not block["pairs"]:
+            continue
+        name = f"plots/{st}_metrics.png"
+        plot_metric_bars(stage.tmp(name), {label: block.get(key) or {} for key, label in ROWS},
+                         [x for x in METRICS if st == "dynamic" or x[0] not in DYNAMIC_ONLY],
+                         title=f"{st} setting: model vs reference")
+        images[f"{st}/metrics"] = out / name
+        for sid in ev.contexts:
+            rs = [r for r in ev.results[st] if r.pair.scene == sid]
+            if rs:
+                name = f"plots/{st}_scene{sid}.png"
+                plot_scene_pairs(stage.tmp(name), ev.contexts[sid].fmap, rs, title=f"{st} — scene {sid} — {title}")
+                images[f"{st}/scene{sid}"] = out / name
+    return images
+
+
+__all__ = ["METRICS", "build_report", "markdown", "log_tensorboard", "plot_figures", "write_report"]

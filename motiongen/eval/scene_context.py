@@ -7,6 +7,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
 
 from motiongen.routing import walkable_map
 from motiongen.scene.distance_field import surface_distance
@@ -105,14 +107,10 @@ class SceneContext:
     def object(self, oid: int):
         """(occupancy grid in the object frame, KD-tree of surface samples in the object frame) or None."""
         if oid not in self._obj_cache:
-            from scipy.spatial import cKDTree
-
             mesh = self.ds.object_mesh(oid)
             if mesh is None:
                 self._obj_cache[oid] = None
             else:
-                import trimesh
-
                 pts, _ = trimesh.sample.sample_surface(mesh, 2000, seed=0)                   # (2000, 3)
                 pts = np.concatenate([pts, mesh.vertices])
                 self._obj_cache[oid] = (voxelize_mesh(mesh, voxel_size=self.grid.voxel_size), cKDTree(pts))

@@ -34,6 +34,7 @@ from motiongen.data.format import SMPLX_FIELDS
 from motiongen.importers.bvh import load_clips, write_clips
 from motiongen.errors import ConfigError, DataError
 from motiongen.geometry import up_rotation
+from motiongen.rates import DATA_FPS
 from motiongen.skeleton import FOOT_JOINTS, HEAD
 
 LAYOUTS = {165: "smplx", 156: "smplh"}      # poses width -> layout; the body is columns 0:66 in both
@@ -44,7 +45,7 @@ FLOOR_PERCENTILE = 2.0                      # of the per-frame lowest foot joint
 Z_TO_Y = Rotation.from_matrix(up_rotation("+z"))     # z-up -> y-up: (x, y, z) -> (x, z, -y)
 
 SPEC = {"inputs": (list, []), "out": (str, None), "body_model": (str, None), "up": (str, None),
-        "scene": (str, None), "scene_id": (int, 0), "split": (str, "train"), "fps": (float, 30.0),
+        "scene": (str, None), "scene_id": (int, 0), "split": (str, "train"), "fps": (float, DATA_FPS),
         "action": (str, None), "overwrite": (bool, False)}
 USAGE = "inputs=[a.npz,b.npz] out=DIR [body_model=PATH] [up=z|y]"
 
@@ -169,7 +170,7 @@ def resample_params(rotvecs: np.ndarray, transl: np.ndarray, src_fps: float, dst
     return rot, CubicSpline(t_src, transl, axis=0)(t_dst)
 
 
-def amass_to_body(f: AmassFile, bm: BodyModel, fps: float = 30.0, up: str | None = None) -> ImportedAmass:
+def amass_to_body(f: AmassFile, bm: BodyModel, fps: float = DATA_FPS, up: str | None = None) -> ImportedAmass:
     """One validated file -> y-up, resampled parameters and joints on the floor (see module doc).
     up: "z" | "y" overrides the file's `up` key; without either the file is AMASS, z-up."""
     if up is not None:
@@ -211,7 +212,7 @@ def _body_model(body_model) -> BodyModel:
     return load_body_model(body_model, num_betas=NUM_BETAS, dtype=torch.float64)
 
 
-def import_amass(path: str | Path, body_model: BodyModel | str | Path | None = None, fps: float = 30.0,
+def import_amass(path: str | Path, body_model: BodyModel | str | Path | None = None, fps: float = DATA_FPS,
                  up: str | None = None) -> ImportedAmass:
     """`load_amass` + `amass_to_body`. body_model: a BodyModel, a model .npz path, or None
     (``$MOTIONGEN_SMPLX_MODEL``, else the procedural model)."""

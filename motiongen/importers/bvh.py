@@ -29,6 +29,7 @@ from motiongen.bvh.detect import parse_up
 from motiongen.data.dataset_writer import DatasetWriter
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.errors import ConfigError, MotiongenError
+from motiongen.rates import DATA_FPS
 from motiongen.skeleton import BODY, LEFT_FOOT_JOINTS, RIGHT_FOOT_JOINTS
 
 # (joint, height threshold m): toes touch lower than ankles.
@@ -40,7 +41,7 @@ EMPTY_GRID_HEIGHT = 2.0
 
 
 SPEC = {"inputs": (list, []), "out": (str, None), "mapping": (str, None), "scene": (str, None), "scene_id": (int, 0),
-        "split": (str, "train"), "unit": (str, None), "up": (str, None), "fps": (float, 30.0), "action": (str, None),
+        "split": (str, "train"), "unit": (str, None), "up": (str, None), "fps": (float, DATA_FPS), "action": (str, None),
         "overwrite": (bool, False)}
 USAGE = "inputs=[a.bvh,b.bvh] out=DIR [mapping=FILE]"
 

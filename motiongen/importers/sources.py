@@ -8,8 +8,11 @@ from pathlib import Path
 from typing import Any
 
 from motiongen.data.format import MotionDataset
+from motiongen.data.mix import open_mixed
 from motiongen.errors import ConfigError
+from motiongen.importers.trumans import convert_trumans
 from motiongen.paths import cache_dir
+from motiongen.synthetic import GENERATOR_VERSION, generate
 
 
 @dataclass
@@ -28,7 +31,6 @@ def dataset_root(cfg: DataConfig) -> Path:
     if cfg.root:
         return Path(cfg.root).expanduser()
     if cfg.source == "synthetic":
-        from motiongen.synthetic import GENERATOR_VERSION
         return cache_dir() / "datasets" / f"synthetic-{cfg.size}-seed{cfg.seed}-v{GENERATOR_VERSION}"
     if cfg.source == "trumans":
         if not cfg.release:
@@ -50,19 +52,16 @@ def open_dataset(cfg: DataConfig, verbose: bool = True) -> MotionDataset:
             fcntl.flock(lock, fcntl.LOCK_EX)
             if not (root / "meta.json").is_file():
                 if cfg.source == "synthetic":
-                    from motiongen.synthetic import generate
                     if verbose:
                         print(f"generating synthetic dataset ({cfg.size}, seed {cfg.seed}) -> {root}", flush=True)
                     generate(root, size=cfg.size, seed=cfg.seed, overwrite=root.exists())
                 else:
-                    from motiongen.importers.trumans import convert_trumans
                     if verbose:
                         print(f"converting TRUMANS release {cfg.release} -> {root}", flush=True)
                     convert_trumans(cfg.release, root, overwrite=root.exists())
     splits = dict(cfg.splits) if cfg.splits else None
     ds = MotionDataset.open(root, splits=splits)
     if cfg.augmented:
-        from motiongen.data.mix import open_mixed
         paths = [cfg.augmented] if isinstance(cfg.augmented, str) else list(cfg.augmented)
         ds = open_mixed(ds, paths, splits, cache_dir() / "datasets", verbose)
     return ds

@@ -219,6 +219,22 @@ def open_release(release_dir: str | Path, grid: GridSpec = TRUMANS_GRID, allow_p
     root = Path(release_dir)
     if not root.is_dir():
         raise DataError(root, None, "release directory does not exist")
+    arrays = _frame_arrays(root, allow_pickle)
+    N = arrays["human_joints"].shape[0]
+    smplx, betas = _smplx_arrays(root, N)
+    scene_files = _scene_files(root, grid)
+    scene_ids, rule = scene_ids_from_names([f.name for f in scene_files])
+    sequences = _sequences(root, arrays, N, len(scene_files))
+    norm = None
+    if allow_pickle and (root / "norm.npy").exists():
+        norm = _load_norm(root / "norm.npy")
+    return TrumansRelease(root, N, arrays, smplx, betas, scene_files, scene_ids, rule, sequences,
+                          _object_names(root), norm, grid)
+
+
+def _frame_arrays(root: Path, allow_pickle: bool) -> dict[str, np.ndarray]:
+    """The required per-frame arrays (`_REQUIRED`, all of N frames) and a check of the frame-index
+    lists (`_INDEX_FILES`)."""
     arrays: dict[str, np.ndarray] = {}
     joints = arrays["human_joints"] = _load(root, "human_joints")
     _check(root, "human_joints", joints, None, *_REQUIRED["human_joints"])
@@ -236,7 +252,11 @@ def open_release(release_dir: str | Path, grid: GridSpec = TRUMANS_GRID, allow_p
         bad = _scan_range(a, 0, N)
         if bad >= 0:
             raise DataError(root / f"{name}.npy", name, f"entry {bad} = {a[bad]} is not a frame index in [0, {N})")
+    return arrays
 
+
+def _smplx_arrays(root: Path, N: int) -> tuple[dict[str, np.ndarray] | None, np.ndarray | None]:
+    """The optional SMPL-X parameters (`_OPTIONAL_SMPLX`: both or neither) and their betas."""
     smplx = None
     present = {k: (root / f"{k}.npy").exists() for k in _OPTIONAL_SMPLX}
     if any(present.values()):
@@ -260,7 +280,11 @@ def open_release(release_dir: str | Path, grid: GridSpec = TRUMANS_GRID, allow_p
                             f"found {betas.dtype} {betas.shape}")
         if not np.isfinite(np.asarray(betas[:1] if betas.ndim == 2 else betas)).all():
             raise DataError(root / "human_betas.npy", "human_betas", "non-finite value (NaN or inf)")
+    return smplx, betas
 
+
+def _scene_files(root: Path, grid: GridSpec) -> list[Path]:
+    """The sorted Scene/*.npy occupancy grids, each checked against `grid`."""
     scene_dir = root / "Scene"
     if not scene_dir.is_dir():
         raise DataError(scene_dir, "Scene", "scene folder is missing")
@@ -272,14 +296,17 @@ def open_release(release_dir: str | Path, grid: GridSpec = TRUMANS_GRID, allow_p
         if g.shape != tuple(grid.shape) or g.dtype != np.bool_:
             raise DataError(f, "Scene", f"expected bool {tuple(grid.shape)} occupancy grid, found {g.dtype} {g.shape}")
         del g
-    scene_ids, rule = scene_ids_from_names([f.name for f in scene_files])
+    return scene_files
 
+
+def _sequences(root: Path, arrays: dict[str, np.ndarray], N: int, num_scenes: int) -> list[TrumansSequence]:
+    """The release's sequences: runs of equal seg_name, each in one scene of the `num_scenes`."""
     flag = arrays["scene_flag"]
-    bad = _scan_range(flag, 0, len(scene_files))
+    bad = _scan_range(flag, 0, num_scenes)
     if bad >= 0:
         raise DataError(root / "scene_flag.npy", "scene_flag",
-                        f"value {int(flag[bad])} at frame {bad} is out of range: Scene/ holds {len(scene_files)} "
-                        f"grids, expected 0..{len(scene_files) - 1} (is a Scene file missing?)")
+                        f"value {int(flag[bad])} at frame {bad} is out of range: Scene/ holds {num_scenes} "
+                        f"grids, expected 0..{num_scenes - 1} (is a Scene file missing?)")
     seg = arrays["seg_name"]
     starts = np.concatenate([[0], _scan_changes(seg), [N]]).astype(np.int64)
     inner_scene_changes = np.setdiff1d(_scan_changes(flag), starts)
@@ -294,12 +321,7 @@ def open_release(release_dir: str | Path, grid: GridSpec = TRUMANS_GRID, allow_p
         k = seen[name] = seen.get(name, 0) + 1
         # a name that reappears later is a separate sequence; keep names unique
         sequences.append(TrumansSequence(name if k == 1 else f"{name}~{k}", int(s), int(e), int(flag[s])))
-
-    norm = None
-    if allow_pickle and (root / "norm.npy").exists():
-        norm = _load_norm(root / "norm.npy")
-    return TrumansRelease(root, N, arrays, smplx, betas, scene_files, scene_ids, rule, sequences,
-                          _object_names(root), norm, grid)
+    return sequences
 
 
 def _load_norm(path: Path) -> dict:

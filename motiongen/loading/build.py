@@ -2,20 +2,22 @@
 
 from __future__ import annotations
 
-from dataclasses import fields
+from dataclasses import fields, replace
 
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from motiongen.data.representation import Layout
-from motiongen.importers.sources import DataConfig
-from motiongen.data.windows import WindowConfig, WindowNode
+from motiongen.data.windows import NormStats, WindowConfig
 from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, sample
 from motiongen.diffusion.masks import MaskConfig, predicts_goal, replace_mask, sample_known_mask
-from motiongen.errors import ConfigError
+from motiongen.errors import ConfigError, DataError, MotiongenError
+from motiongen.importers.sources import DataConfig
+from motiongen.loading.checkpoint import load_checkpoint
 from motiongen.models import Condition, ModelConfig, build_model
 from motiongen.models.condition import drop_conditions
-from motiongen.skeleton import JointSet
+from motiongen.rates import DATA_FPS, DEFAULT_STEPS
+from motiongen.skeleton import JointSet, joint_set_for
 
 
 def _dataclass_from(cls, node):
@@ -32,7 +34,7 @@ def data_config(cfg) -> DataConfig:
 
 
 def window_config(cfg) -> WindowConfig:
-    return _dataclass_from(WindowNode, cfg.window).to_window_config()
+    return _dataclass_from(WindowConfig, cfg.window)
 
 
 def mask_config(cfg) -> MaskConfig:
@@ -47,8 +49,7 @@ def build_from_config(cfg, joint_set: JointSet, action_names: list[str]):
     if not w.scene and mcfg.use_scene:
         # Windows without a scene grid: a scene encoder would never see an input (and under
         # DDP its parameters would never get a gradient).
-        from dataclasses import replace as _replace
-        mcfg = _replace(mcfg, use_scene=False)
+        mcfg = replace(mcfg, use_scene=False)
     if not 0 <= mcfg.temporal_basis <= w.length:
         raise ConfigError(f"model.temporal_basis={mcfg.temporal_basis}: expected 0 (off) .. window.length={w.length}")
     if mcfg.temporal_basis and dcfg.prediction != "x0":
@@ -92,7 +93,7 @@ def fixed_known_mask(shape, transition: int, goal: bool, device) -> torch.Tensor
 
 
 @torch.no_grad()
-def sample_windows(model, diffusion, batch: dict, cfg, device, generator, steps: int = 25) -> torch.Tensor:
+def sample_windows(model, diffusion, batch: dict, cfg, device, generator, steps: int = DEFAULT_STEPS) -> torch.Tensor:
     """Sample windows for a batch, pinning its first 2 frames and its goal (as sampling does)."""
     x0 = batch["motion"].to(device)
     cond = Condition(scene=batch["scene"].to(device) if "scene" in batch else None, actions=batch["actions"].to(device))
@@ -107,8 +108,6 @@ def _with_legacy_defaults(cfg):
     """Checkpoints from before the representation key and goal prediction hold absolute joints
     without stance channels and pinned goals: missing keys mean the old behaviour, not today's
     defaults."""
-    from omegaconf import open_dict
-
     with open_dict(cfg):
         if "representation" not in cfg.window:
             cfg.window.representation = "absolute"
@@ -120,16 +119,13 @@ def _with_legacy_defaults(cfg):
 
 class LoadedModel:
     """Everything a tool needs from a checkpoint alone: the EMA denoiser (eval mode), the
-    diffusion, normalisation statistics, joint set, action vocabulary and window config."""
+    diffusion, normalisation statistics, joint set, action vocabulary and window config, and
+    the rates: `fps` of the training data and `model_fps` of the model's windows."""
 
     precision = "fp32"                              # of the transformer layers (load_model)
 
     def __init__(self, state: dict, device, use_ema: bool = True):
-        from motiongen.data.windows import NormStats
-        from motiongen.skeleton import joint_set_for
-        from omegaconf import OmegaConf as OC
-
-        cfg = _with_legacy_defaults(OC.create(state["config"]))
+        cfg = _with_legacy_defaults(OmegaConf.create(state["config"]))
         self.config = cfg
         self.step = int(state["step"])
         self.joint_set = joint_set_for(state["joint_names"])
@@ -139,7 +135,7 @@ class LoadedModel:
         self.mask = mask_config(cfg)
         self.layout = Layout.for_window(self.window, self.joint_set)
         self.predict_goal = goal_predicted(cfg)
-        self.fps = float(state.get("fps") or 30.0)         # the training data's frame rate
+        self.fps = float(state.get("fps") or DATA_FPS)      # the training data's frame rate
         model, self.diffusion, _ = build_from_config(cfg, self.joint_set, self.action_names)
         try:
             model.load_state_dict(state["ema" if use_ema else "model"])
@@ -148,12 +144,17 @@ class LoadedModel:
         self.model = model.to(device).eval().requires_grad_(False)
         self.device = torch.device(device)
 
+    @property
+    def model_fps(self) -> float:
+        """The data rate the model was trained at: frames per second of its windows, the
+        training data's rate over the window stride."""
+        return self.fps / self.window.stride
+
 
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16}
-# precision=auto: bf16 from this many parameters in the denoiser's transformer layers. Measured
-# on 2 CPU cores, batch 1: the paper-size layers (12.6 M) take 11-17 ms per step in bf16 against
-# 17-29 ms in fp32 (DDIM-25 real-time factor 2.4-2.8 against 1.35-1.95 in one run,
-# benchmarks/sample.py); the quality recipe's (1.2 M) show no gain (2.1-3.1 ms either way).
+# precision=auto: bf16 from this many parameters in the denoiser's transformer layers. On a CPU
+# the paper-size layers (12.6 M) run their steps faster in bf16, the quality recipe's (1.2 M) do
+# not (benchmarks/sample.py measures both).
 AUTO_BF16_PARAMS = 4_000_000
 
 
@@ -175,9 +176,6 @@ def load_model(path, device="cpu", use_ema: bool = True, precision: str = "fp32"
     `precision`: the denoiser's transformer layers for sampling, fp32, bf16 (Denoiser.blocks_to)
     or auto (resolve_precision); `loaded.precision` says which.
     Anything wrong with the file or the device is a user error (MotiongenError)."""
-    from motiongen.errors import DataError, MotiongenError
-    from motiongen.loading.checkpoint import load_checkpoint
-
     check_precision(precision)                      # a bad key fails before the file is read
     device = str(device)
     if device.startswith("cuda") and not torch.cuda.is_available():

@@ -22,8 +22,8 @@ def blend_seam(window: np.ndarray, k: int, frames: int) -> np.ndarray:
     of frame k and faded over the next `frames` free frames with a raised cosine (weights 1 ..
     0), so frame k continues the pinned frames at constant velocity and the correction's own
     acceleration stays ~δ π² / (2 frames²) per frame². The network places the first free frame
-    a few centimetres off the continuation of the pinned ones (measured: ~8x the data's
-    acceleration there, docs/quality.md); without this every episode seam is a jolt.
+    a few centimetres off the continuation of the pinned ones, far above the data's own
+    acceleration there (docs/quality.md); without this every episode seam is a jolt.
     k < 2 (no velocity to carry) or frames < 1 leaves the window as it is."""
     out = np.array(window, copy=True)
     n = min(int(frames), out.shape[1] - k)
@@ -42,18 +42,14 @@ SMOOTHABLE_FPS = 15.0
 
 def solve_smoothness_for_rate(model_fps: float) -> float:
     """`loop.solve_smoothness` = None: the final solve's joint-acceleration weight. At
-    SMOOTHABLE_FPS or more a strong weight (200) takes the network's jitter out: on the demo's
-    4-scene static check PSKL 8x (weight 5) -> 4.9x (100) -> 4.4x (200) the data's split-half
-    value, foot skating 0.104 -> 0.089 -> 0.087. Below it, 50: a 10 fps model's spectrum lacks
-    the data's 8-15 Hz power (its windows stop at 5 Hz), and a weaker weight lets the solve's
-    foot lock and swing clearance put some back. The quality model with `loop.smooth=2` and the
-    0.6 s seam blend, full evaluate.py protocol, static / dynamic PSKL (gen, ref), (ref, gen):
-    weight 100 2.80x 3.35x / 2.72x 2.92x, 70 2.69x 3.00x / 2.71x 2.74x, 50 2.58x 2.74x / 2.83x 2.68x, foot
-    skating 0.064 / 0.051 at 50. The swing clearance keeps the skating down (without it, weight
-    100 took skating 0.077 -> 0.177: smoothing lowered the swinging foot). The solve runs a
-    fixed 80 L-BFGS steps and is not converged at any of these weights (on an 11 s demo walk its
-    joints sit a mean 3.3 cm from a 600-step solve at weight 100, 3.8 cm at 200): it filters the
-    high frequencies first, which is what this weight is for, at a cost that does not grow with it."""
+    SMOOTHABLE_FPS or more a strong weight (200) takes the network's jitter out (motion
+    spectrum and foot skating both improve with the weight). Below it, 50: a 10 fps model's
+    spectrum lacks the data's 8-15 Hz power (its windows stop at 5 Hz), and a weaker weight lets
+    the solve's foot lock and swing clearance put some back. The swing clearance keeps the
+    skating down at these weights (without it, a strong weight lowers the swinging foot). The
+    solve runs a fixed 80 L-BFGS steps and is not converged at any of these weights: it filters
+    the high frequencies first, which is what this weight is for, at a cost that does not grow
+    with it. The figures behind both values: docs/results.md."""
     return 200.0 if model_fps >= SMOOTHABLE_FPS - 1e-6 else 50.0
 
 

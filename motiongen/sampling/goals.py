@@ -5,6 +5,8 @@ Everything here works on the ground plane: points are (x, z) in world metres (y-
 * `Goal`: a target point, optionally with an action to perform there for `duration` seconds.
 * `plan_route`: start + goals -> per-goal legs (shortest collision-free paths on the scene's
   `motiongen.routing.WalkableMap`), the full path and subgoals every `spacing` m.
+* `plan_scene_route`: the same from a scene (its walkable map built here) after checking the
+  goals' actions against a checkpoint's vocabulary: what a caller does before `generate`.
 * Goals from the command line and from JSON / CSV files: `motiongen.sampling.goal_input`.
 
 Goals that carry an interaction (sit, lie down, ...) may lie on furniture: the route then
@@ -21,7 +23,7 @@ from typing import Sequence
 import numpy as np
 
 from motiongen.errors import ConfigError
-from motiongen.routing import WalkableMap, plan_path
+from motiongen.routing import WalkableMap, plan_path, walkable_map
 
 WALK_NAMES = ("walk", "none", "")
 
@@ -170,6 +172,27 @@ def plan_route(start, goals: Sequence[Goal], fmap: WalkableMap | None = None, mo
         owner.append(np.full(len(sg), g, np.int64))
         cur = goal.xz
     return Route(start, list(goals), legs, np.concatenate(subgoals), np.concatenate(owner), mode)
+
+
+def plan_scene_route(start, goals: Sequence[Goal], vocabulary: Sequence[str], scene=None, *,
+                     walkable: WalkableMap | None = None, path: str = "astar", subgoal_spacing: float = 0.6,
+                     body_radius: float = 0.25) -> tuple[Route, WalkableMap | None]:
+    """(route, walkable map) for `generate(route=, walkable=)`: `goals` checked against the
+    checkpoint's `vocabulary` (`check_actions`), then `plan_route` with `path` / `subgoal_spacing`
+    on `walkable`, built from `scene` (an OccupancyGrid or None) with `body_radius` when None
+    and path="astar". The map returned is the one planned on (None: no scene, or path="straight"
+    without one given): `generate` tests look-ahead targets for line of sight on it.
+    Raises ConfigError for unknown actions and bad points or paths."""
+    goals = list(goals)
+    check_actions(goals, vocabulary)
+    if walkable is None and scene is not None and path == "astar":
+        walkable = walkable_map(scene, body_radius)
+    return plan_route(start, goals, walkable, path, subgoal_spacing), walkable
+
+
+def action_index(vocabulary: Sequence[str], name: str | None) -> int:
+    """The index of action `name` in `vocabulary`; -1 for None or a name it lacks."""
+    return vocabulary.index(name) if name is not None and name in vocabulary else -1
 
 
 def check_actions(goals: Sequence[Goal], vocabulary: Sequence[str]) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from motiongen.skeleton import BODY_JOINT_NAMES, HAND_JOINTS
+from motiongen.skeleton import BODY_JOINT_NAMES, FOOT_JOINTS, HAND_JOINTS, PELVIS
 from motiongen.spans import ramp_weights, true_runs
 
 
@@ -97,8 +97,6 @@ def seat_shift(joints: np.ndarray, labels: np.ndarray, actions: dict, targets: l
     the feet not at all: the legs bend between a body on the seat and feet on the floor, which
     the final solve then makes one body, with the pelvis held at the target (the returned
     reach targets). Returns (moved joints (a copy), (frames, joints, points, weights) or None)."""
-    from motiongen.skeleton import FOOT_JOINTS, PELVIS
-
     out = np.array(joints, np.float64)
     frames, points, ws = [], [], []
     if not actions:

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from motiongen.sampling.autoregressive import Motion, SamplerSettings
-
+from motiongen import metrics as M
+from motiongen.sampling.settings import Motion, SamplerSettings
+from motiongen.skeleton import joint_set_for
 
 
 def motion_arrays(motion: Motion, extra: dict | None = None) -> dict:
@@ -54,9 +55,6 @@ def body_figures(motion: Motion) -> dict:
     """Per sample, what the motion is as a body (docs/metrics.md): bone-length CV and largest
     deviation, grounded-toe median slide speed, foot skating; for the output and for the
     network's own joints. Lists of S values."""
-    from motiongen import metrics as M
-    from motiongen.skeleton import joint_set_for
-
     parents = joint_set_for(motion.joint_names).parents
     out: dict[str, list] = {}
     for tag, joints in (("", motion.joints), ("network_", motion.joints_raw)):

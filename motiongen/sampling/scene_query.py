@@ -6,10 +6,12 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from motiongen.scene.local_occupancy import (DynamicObjects, GridBank, LocalGridSpec, TorchOccupancy,
+                                              local_occupancy)
+from motiongen.scene.occupancy import OccupancyGrid
+
 
 def _scene_spec(window):
-    from motiongen.scene.local_occupancy import LocalGridSpec
-
     lo, hi = window.grid_lo, window.grid_hi
     return LocalGridSpec(tuple(int(r) for r in window.grid_res), (lo[0], hi[0]), (lo[1], hi[1]), (lo[2], hi[2]))
 
@@ -19,8 +21,6 @@ class SceneQuery:
     without scene conditioning. No scene = an empty floor (all free)."""
 
     def __init__(self, loaded, grid, objects, device):
-        from motiongen.scene.local_occupancy import DynamicObjects, GridBank, TorchOccupancy
-
         self.enabled = loaded.window.scene and getattr(loaded.model, "scene_encoder", None) is not None
         self.spec = _scene_spec(loaded.window)
         self.outside = bool(loaded.window.outside_occupied)
@@ -41,8 +41,6 @@ class SceneQuery:
         S = at_goal.shape[0]
         if self.bank is None and self.objects is None:
             return torch.zeros((S, *self.spec.out_shape), dtype=torch.float32, device=self.device)
-        from motiongen.scene.local_occupancy import local_occupancy
-
         T = torch.as_tensor(at_goal, dtype=torch.float32, device=self.device)
         objs = None
         if self.objects is not None:
@@ -52,9 +50,6 @@ class SceneQuery:
             objs = self.objects(bank, ids, poses.to(self.device)[None].expand(S, K, 4, 4))
         if self.bank is None:
             # Objects on an empty floor: an all-free 1-voxel grid far away plays the scene.
-            from motiongen.scene.occupancy import OccupancyGrid
-            from motiongen.scene.local_occupancy import TorchOccupancy
-
             self.bank = TorchOccupancy(OccupancyGrid.from_dense(np.zeros((1, 1, 1), bool), [1e6, 1e6, 1e6], 1.0),
                                        self.device)
             self.outside = False

@@ -7,10 +7,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.ndimage as ndi
 
+from motiongen.data.format import MotionDataset
 from motiongen.errors import ConfigError
+from motiongen.importers.sources import DataConfig, open_dataset
 from motiongen.routing import WalkableMap
 from motiongen.sampling.goals import Goal, plan_route
+from motiongen.scene.loading import load_scene_grid
+from motiongen.scene.voxelize import voxelize_mesh
+from motiongen.synthetic.scenes import make_scene
 
 
 @dataclass
@@ -31,8 +37,6 @@ def _dataset_scene(ds, scene_id: int, label: str, with_objects: bool) -> SceneIn
         # Movable objects at their resting poses: the first frame of the scene's first sequence.
         seq = next((s for s in ds.sequences if s.scene == scene_id), None)
         if seq is not None:
-            from motiongen.scene.voxelize import voxelize_mesh
-
             ids = np.asarray(ds.object_ids[seq.start])
             for slot, oid in enumerate(ids):
                 mesh = ds.object_mesh(int(oid)) if oid >= 0 else None
@@ -49,8 +53,6 @@ def resolve_scene(spec, ckpt_config=None, voxel_size: float = 0.02, up: str = "y
     spec = str(spec)
     if spec.startswith("synthetic:"):
         sid = _scene_id(spec.split(":", 1)[1], spec)
-        from motiongen.importers.sources import DataConfig, open_dataset
-
         data = ckpt_config.get("data") if ckpt_config is not None else None
         if data is not None and data.get("source") == "synthetic":
             dcfg = DataConfig(source="synthetic", size=str(data.get("size", "default")), seed=int(data.get("seed", 0)))
@@ -65,11 +67,7 @@ def resolve_scene(spec, ckpt_config=None, voxel_size: float = 0.02, up: str = "y
         root, _, sid = rest.rpartition(":")
         if not root:
             raise ConfigError(f"scene={spec!r}: expected dataset:PATH:ID")
-        from motiongen.data.format import MotionDataset
-
         return _dataset_scene(MotionDataset.open(root), _scene_id(sid, spec), spec, objects)
-    from motiongen.scene.loading import load_scene_grid
-
     return SceneInfo(load_scene_grid(spec, voxel_size=voxel_size, up=up), spec)
 
 
@@ -84,8 +82,6 @@ def _synthetic_layout(scene_id: int, seed: int, grid):
     """The generator's layout of a synthetic scene (seats, beds), rebuilt from its seed; None if
     it does not reproduce the stored grid (another generator version)."""
     try:
-        from motiongen.synthetic.scenes import make_scene
-
         scene = make_scene(scene_id, np.random.default_rng([seed, scene_id]))
         g = scene.grid()
         if tuple(g.shape) == tuple(grid.shape) and np.array_equal(np.asarray(g.bits), np.asarray(grid.bits)):
@@ -101,8 +97,6 @@ def default_route_goals(scene: SceneInfo, fmap: WalkableMap | None, action_names
     a tour of free points far apart. On an empty floor: a 3 m walk with a turn."""
     if fmap is None:
         return np.zeros(2), [Goal([0.0, 2.0]), Goal([1.5, 3.0])]
-    import scipy.ndimage as ndi
-
     # Components of the coarse map A* plans on (narrow gaps may be open only at 2 cm).
     cfree, corigin, ccell = fmap.coarse(0.05)
     labels, n = ndi.label(cfree)

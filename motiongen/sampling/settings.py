@@ -7,15 +7,30 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from motiongen.errors import ConfigError
+from motiongen.rates import DATA_FPS, DEFAULT_STEPS
 from motiongen.sampling.goals import Route
 
 
 @dataclass
 class SamplerSettings:
     sampler: str = "ddim"          # ddpm | ddim
-    steps: int = 25                # denoising steps (ddpm: respaced when < the training steps)
+    steps: int = DEFAULT_STEPS     # denoising steps (ddpm: respaced when < the training steps)
     eta: float = 0.0               # DDIM stochasticity
     guidance_scale: float = 1.0    # classifier-free guidance; 1 = conditional pass only
+
+    def __post_init__(self):
+        # Checked here, before any model is loaded, for every app built on these keys.
+        if self.sampler not in ("ddpm", "ddim"):
+            raise ConfigError(f"sampler: expected ddpm or ddim, got {self.sampler!r}")
+        if self.steps < 1:
+            raise ConfigError(f"steps must be >= 1, got {self.steps}")
+
+    @classmethod
+    def of(cls, keys: SamplerSettings) -> SamplerSettings:
+        """These settings alone, out of an app's config built on them (the `sample` and
+        `evaluate` keys)."""
+        return cls(**{name: getattr(keys, name) for name in cls.__dataclass_fields__})
 
 
 @dataclass
@@ -28,16 +43,15 @@ class LoopConfig:
     lookahead: bool = True         # target the farthest visible subgoal within reach
     tolerance: float = 0.25        # pelvis distance (m) that counts as arriving
     max_episodes: int = 200
-    out_fps: float = 30.0
+    out_fps: float = DATA_FPS
     source_fps: float | None = None  # rate of the training data (before stride); None = the checkpoint's
     project: bool = True           # one body: each episode projected onto it, and the final solve
     foot_lock: bool = True         # the final solve holds predicted planted feet in place
     pin_goal: bool = False         # write the goal into the result (the public code); default: the model predicts it
     smooth: float = 2.0            # Gaussian sigma (output frames) over the non-foot joints before the final solve; 0 = off
     # Seconds over which each episode's first free frames take on the pinned frames' velocity
-    # (assemble.blend_seam); 0 = off; None = this default. At every model rate: with the final
-    # solve's swing clearance the 10 fps quality model gains too (4-scene check PSKL 3.2x/3.3x ->
-    # 2.9x/3.1x with 0.4 s, 2.9x/2.9x with 0.6 s; without clearance it skated more: docs/quality.md).
+    # (assemble.blend_seam); 0 = off; None = this default. On at every model rate: with the final
+    # solve's swing clearance the 10 fps models gain from it as the 15 fps demo does (docs/quality.md).
     seam_blend: float | None = 0.6
     solve_smoothness: float | None = None  # final solve's joint-acceleration weight; None = by model rate (assemble.solve_smoothness_for_rate)
     # Actions done with a hand on the nearest placed object: the final solve puts the nearer

@@ -17,6 +17,9 @@ import numpy as np
 from motiongen.data.format import DEFAULT_SPLITS
 from motiongen.data.dataset_writer import DatasetWriter
 from motiongen.synthetic.labels import ACTIONS
+from motiongen.synthetic.routes import walkable_room
+from motiongen.synthetic.scenes import MAX_OBJECTS, make_scene
+from motiongen.synthetic.timeline import make_sequence
 from motiongen.errors import ConfigError
 from motiongen.skeleton import BODY
 
@@ -35,10 +38,6 @@ SIZES: dict[str, dict] = {
 
 def _scene_job(args: tuple[int, int, int, tuple[float, float]]) -> dict:
     """Build one scene and its sequences (runs in a worker process)."""
-    from motiongen.synthetic.timeline import make_sequence
-    from motiongen.synthetic.routes import walkable_room
-    from motiongen.synthetic.scenes import make_scene
-
     scene_id, seed, quota, seconds = args
     rng = np.random.default_rng([seed, scene_id])  # independent of worker scheduling
     scene = make_scene(scene_id, rng)
@@ -60,8 +59,6 @@ def generate(root: str | Path, size: str = "default", seed: int = 0, overwrite: 
     size: "default" (100 scenes, >= 30 min of motion) or "small" (10 scenes, ~3 min, for tests).
     workers: processes to build scenes in (default: up to 2 for "default", 1 for "small").
     Raises ConfigError for a bad size/seed, DataError if `root` exists and not `overwrite`."""
-    from motiongen.synthetic.scenes import MAX_OBJECTS
-
     if size not in SIZES:
         raise ConfigError(f"synthetic size must be one of {sorted(SIZES)}, got {size!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:

@@ -52,11 +52,46 @@ class Walk:
     feet: Feet            # planted at the end
 
 
+@dataclass
+class _Steps:
+    """The footsteps of a walk: flat stance ankles (T, 2, 3) and foot yaws (T, 2) per frame
+    (where each foot is planted or will land), and the swings (foot, lift frame, land frame)."""
+    xz: np.ndarray        # (T, 2) root, held at its last value after the root stops
+    yaw: np.ndarray       # (T,)
+    ankle: np.ndarray     # (T, 2, 3)
+    foot_yaw: np.ndarray  # (T, 2)
+    swings: list[tuple[int, int, int]]
+
+    def swinging(self) -> np.ndarray:
+        """(T, 2) bool: the foot is in the air (between its lift and land frames)."""
+        out = np.zeros((len(self.xz), 2), bool)
+        for foot, lift, land in self.swings:
+            out[lift + 1:land, foot] = True
+        return out
+
+
 def walk(body: Body, xz: np.ndarray, yaw: np.ndarray, feet: Feet, fps: float, cycle_s: float,
          first: int) -> Walk:
     """Frames 0..T-1 of stepping along root (x, z) (n, 2) / yaw (n,); frame 0 is the standing
     start. Steps go on after the root stops until both feet are under the body again."""
-    C = cycle_s * fps
+    steps = _plan_steps(body, xz, yaw, feet, cycle_s * fps, first)
+    swinging = steps.swinging()
+    R = rot_y(steps.yaw)                                                            # (T, 3, 3)
+    pelvis = _pelvis(body, steps, swinging, R)
+    hips = pelvis[:, None] + np.einsum("tij,kj->tki", R, body.hip)                  # (T, 2, 3)
+    ankle, pitch = _heel_rise(body, steps, swinging, hips)
+    fyaw = _swing_arcs(body, steps, ankle, pitch)
+    foot_rot = rot_y(fyaw) @ rot_x(pitch)                                              # (T, 2, 3, 3)
+    # Keep the toes above the floor through the swing.
+    toe_y = ankle[..., 1] + np.einsum("tkij,kj->tki", foot_rot, body.foot)[..., 1]
+    ankle[..., 1] += np.where(swinging, np.maximum(body.toe_h - toe_y, 0.0), 0.0)
+    end_feet = Feet(steps.ankle[-1].copy(), steps.foot_yaw[-1].copy())
+    return Walk(pelvis, steps.yaw, ankle, foot_rot, swinging, end_feet)
+
+
+def _plan_steps(body: Body, xz: np.ndarray, yaw: np.ndarray, feet: Feet, C: float, first: int) -> _Steps:
+    """Alternating footsteps every half cycle of C frames, starting with foot `first`, until
+    one cycle after the root's n frames; a step that would gain nothing is skipped."""
     n = len(xz)
     horizon = n + int(2 * C) + 2
     xz = np.concatenate([xz, np.repeat(xz[-1:], horizon - n, 0)])
@@ -89,17 +124,17 @@ def walk(body: Body, xz: np.ndarray, yaw: np.ndarray, feet: Feet, fps: float, cy
         swings.append((foot, lift, land))
         end = max(end, land + 1)
     T = end
-    xz, yaw, track_a, track_y = xz[:T], yaw[:T], track_a[:T], track_y[:T]
-    swinging = np.zeros((T, 2), bool)
-    for foot, lift, land in swings:
-        swinging[lift + 1:land, foot] = True
+    return _Steps(xz[:T], yaw[:T], track_a[:T], track_y[:T], swings)
 
-    fwd = np.stack([np.sin(yaw), np.cos(yaw)], -1)                                  # (T, 2)
+
+def _pelvis(body: Body, steps: _Steps, swinging: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(T, 3) pelvis over the root: as high as standing allows, low enough that flat feet ahead
+    reach the floor (smoothed without rising above that limit). R (T, 3, 3): the root's yaw."""
+    xz, track_a = steps.xz, steps.ankle
+    fwd = np.stack([np.sin(steps.yaw), np.cos(steps.yaw)], -1)                      # (T, 2)
     hip_off = body.hip                                                              # (2, 3)
-    R = rot_y(yaw)                                                                  # (T, 3, 3)
     hip_xz = xz[:, None] + np.einsum("tij,kj->tki", R, hip_off)[..., [0, 2]]        # (T, 2, 2)
     reach = 0.985 * body.leg
-    # Pelvis height: as high as standing allows, low enough that flat feet ahead reach the floor.
     d = track_a[..., [0, 2]] - hip_xz
     ahead = np.einsum("tkj,tj->tk", d, fwd) > -0.02
     lim = track_a[..., 1] + np.sqrt(np.maximum(reach ** 2 - np.sum(d ** 2, -1), 0.0)) - hip_off[:, 1]
@@ -108,13 +143,15 @@ def walk(body: Body, xz: np.ndarray, yaw: np.ndarray, feet: Feet, fps: float, cy
     r = 5
     h = ndimage.minimum_filter1d(h, 2 * r + 1, mode="nearest")
     h = ndimage.gaussian_filter1d(h, sigma=r / 2.5, truncate=2.5, mode="nearest")  # stays <= the limit
-    pelvis = np.column_stack([xz[:, 0], h, xz[:, 1]])
-    hips = pelvis[:, None] + np.einsum("tij,kj->tki", R, hip_off)                  # (T, 2, 3)
+    return np.column_stack([xz[:, 0], h, xz[:, 1]])
 
-    foot_vec = body.foot                                                            # (2, 3)
+
+def _heel_rise(body: Body, steps: _Steps, swinging: np.ndarray, hips: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ankles (T, 2, 3) and foot pitches (T, 2): stance feet pivot about the toe (bisection on
+    the pitch) until the ankle is within reach of the hip (T, 2, 3)."""
+    track_a, track_y, foot_vec = steps.ankle, steps.foot_yaw, body.foot             # foot_vec (2, 3)
     ankle = track_a.copy()
-    pitch = np.zeros((T, 2))
-    # Heel rise: pivot stance feet about the toe until the ankle is within reach of the hip.
+    pitch = np.zeros((len(track_a), 2))
     for f in (0, 1):
         toe = track_a[:, f] + np.einsum("tij,j->ti", rot_y(track_y[:, f]), foot_vec[f])
         far = (~swinging[:, f]) & (np.linalg.norm(hips[:, f] - track_a[:, f], axis=-1) > 0.99 * body.leg)
@@ -128,8 +165,16 @@ def walk(body: Body, xz: np.ndarray, yaw: np.ndarray, feet: Feet, fps: float, cy
                 hi, lo = np.where(ok, mid, hi), np.where(ok, lo, mid)
             pitch[far, f] = hi
             ankle[far, f] = toe[far] - np.einsum("tij,tj->ti", Ry @ rot_x(hi), np.broadcast_to(foot_vec[f], (len(hi), 3)))
+    return ankle, pitch
+
+
+def _swing_arcs(body: Body, steps: _Steps, ankle: np.ndarray, pitch: np.ndarray) -> np.ndarray:
+    """Swinging feet on minimum-jerk arcs from lift-off to landing, with a clearance that grows
+    with the step: writes their ankles (T, 2, 3) and pitches (T, 2) in place and returns the
+    foot yaws (T, 2)."""
+    track_a, track_y = steps.ankle, steps.foot_yaw
     fyaw = track_y.copy()
-    for foot, lift, land in swings:
+    for foot, lift, land in steps.swings:
         a0, a1 = ankle[lift, foot], track_a[land, foot]
         y0, y1, p0 = fyaw[lift, foot], track_y[land, foot], pitch[lift, foot]
         u = (np.arange(lift + 1, land) - lift) / (land - lift)
@@ -141,9 +186,4 @@ def walk(body: Body, xz: np.ndarray, yaw: np.ndarray, feet: Feet, fps: float, cy
         fyaw[lift + 1:land, foot] = y0 + (y1 - y0) * m[:, 0]
         pitch[lift + 1:land, foot] = p0 * (1 - minjerk(np.clip(u * 2, 0, 1)))
         ankle[lift + 1:land, foot] = a
-    foot_rot = rot_y(fyaw) @ rot_x(pitch)                                              # (T, 2, 3, 3)
-    # Keep the toes above the floor through the swing.
-    toe_y = ankle[..., 1] + np.einsum("tkij,kj->tki", foot_rot, foot_vec)[..., 1]
-    ankle[..., 1] += np.where(swinging, np.maximum(body.toe_h - toe_y, 0.0), 0.0)
-    end_feet = Feet(track_a[-1].copy(), track_y[-1].copy())
-    return Walk(pelvis, yaw, ankle, foot_rot, swinging, end_feet)
+    return fyaw

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from motiongen.export.video import SAMPLE_COLOURS
+from motiongen.export.video_frame import SAMPLE_COLOURS
 from motiongen.skeleton import PELVIS
 
 
@@ -16,11 +16,13 @@ def plot_trajectories(path: str | Path, joints: np.ndarray, walkable=None, path_
     """Top-down PNG (seen from +y: x right, z down) of pelvis trajectories (S, T, J, 3) with the
     walkable map (obstacles dark, body-radius margin light), planned path, subgoals, goals
     (numbered) and where each sample arrived (arrival_frames (S, G), -1 = never)."""
+    # Imported here, when a figure is drawn: matplotlib is heavy, and choosing its backend on
+    # import would change it for every program that imports motiongen.
     import matplotlib
 
     matplotlib.use("Agg", force=False)
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # heavy, as above
+    from matplotlib.figure import Figure  # heavy, as above
 
     path = Path(path)
     joints = np.asarray(joints)

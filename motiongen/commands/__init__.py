@@ -2,7 +2,12 @@
 
     motiongen <command> [key=value ...]      motiongen <command> --help      motiongen --help
 
-`train`, `sample` and `evaluate` are Hydra applications (motiongen/configs/*.yaml; `--help`
+Every command is a module with `main(argv=None)` (argv: the arguments after the command name;
+None = sys.argv[1:], when the module runs as a script). A module that is only a command line is
+`motiongen/commands/<command>_command.py`; a tool that is one library module with its own
+command line (the importers, annotation and capture tools) has its `main` at the end of that
+module. `train`, `sample`, `evaluate` and `train-body-mlp` are Hydra applications
+(motiongen/configs/<app>.yaml over the structured configs of motiongen/config.py; `--help`
 prints their whole config); the others take `key=value` arguments in the same override syntax
 and list their keys and defaults with `--help`. Every user error is one line on stderr and exit
 status 2.
@@ -13,25 +18,23 @@ from __future__ import annotations
 import importlib
 import sys
 
-# name -> (module, what it does). Modules of the small tools have `main(argv)`.
+# name -> (module with `main(argv=None)`, what it does).
 COMMANDS: dict[str, tuple[str, str]] = {
-    "train": ("motiongen.apps", "train a motion model (or the joints-to-body MLP: task=joints2body)"),
-    "sample": ("motiongen.apps", "generate motion through goal points in a scene: npz, video, BVH, SMPL-X"),
-    "evaluate": ("motiongen.apps", "the TRUMANS static/dynamic protocol against the data and real mocap"),
-    "fit": ("motiongen.body.fit_cli", "joint trajectories -> SMPL-X body parameters (MLP + refinement)"),
-    "synthetic": ("motiongen.synthetic.__main__", "generate the embedded synthetic dataset"),
+    "train": ("motiongen.commands.train_command", "train a motion model (or the joints-to-body MLP: task=joints2body)"),
+    "sample": ("motiongen.commands.sample_command", "generate motion through goal points in a scene: npz, video, BVH, SMPL-X"),
+    "evaluate": ("motiongen.commands.evaluate_command", "the TRUMANS static/dynamic protocol against the data and real mocap"),
+    "fit": ("motiongen.commands.fit_command", "joint trajectories -> SMPL-X body parameters (MLP + refinement)"),
+    "synthetic": ("motiongen.commands.synthetic_command", "generate the embedded synthetic dataset"),
     "import-bvh": ("motiongen.importers.bvh", "BVH files -> a motiongen dataset"),
     "import-amass": ("motiongen.importers.amass", "AMASS-style SMPL-X / SMPL-H npz -> a motiongen dataset"),
     "import-trumans": ("motiongen.importers.trumans", "the public TRUMANS release -> a motiongen dataset"),
     "annotate-contact": ("motiongen.annotation.annotate_contact", "per-vertex body-scene/object contact labels for a dataset (B.6)"),
     "augment": ("motiongen.annotation.augment", "contact-preserving augmentation: scale, swap, move objects (B.5)"),
-    "fit-multiview": ("motiongen.capture.fit_multiview", "calibrated cameras + 2D keypoints -> SMPL-X motion (3 stages, seed 000)"),
+    "fit-multiview": ("motiongen.capture.fit_multiview", "calibrated cameras + 2D keypoints -> SMPL-X motion (3 stages, the multi-view capture paper)"),
     "pose-prior": ("motiongen.capture.pose_prior", "build the multi-view fit's PCA pose prior from a dataset or AMASS files"),
     "contact-sensors": ("motiongen.capture.contact_sensors", "force-sensor recordings -> per-frame joint contact (clap sync, thresholds)"),
-    "train-body-mlp": ("motiongen.body.train_mlp", "train the joints-to-SMPL-X MLP alone (Hydra, TrainMLPConfig)"),
+    "train-body-mlp": ("motiongen.commands.train_body_mlp_command", "train the joints-to-SMPL-X MLP alone (Hydra, TrainMLPConfig)"),
 }
-HYDRA_APPS = ("train", "sample", "evaluate")
-HYDRA_MAINS = ("train-body-mlp",)              # Hydra apps with their own structured config
 
 
 def usage() -> str:
@@ -50,12 +53,4 @@ def main(argv: list[str] | None = None) -> None:
         print(f"error: unknown command {name!r}; expected one of {', '.join(COMMANDS)}", file=sys.stderr)
         sys.exit(2)
     module = importlib.import_module(COMMANDS[name][0])
-    if name in HYDRA_APPS or name in HYDRA_MAINS:
-        sys.argv = [f"motiongen {name}", *rest]          # Hydra reads its overrides from sys.argv
-        module.run_app(name) if name in HYDRA_APPS else module.main()
-    else:
-        sys.exit(module.main(rest) or 0)
-
-
-if __name__ == "__main__":
-    main()
+    sys.exit(module.main(rest) or 0)

@@ -19,8 +19,8 @@ class TrainConfig:
     cond_drop_scene: float = 0.1     # classifier-free guidance: drop each condition independently
     cond_drop_actions: float = 0.1
     # Loss weight of the pelvis channels relative to the other joints' (1 = plain mean): extra
-    # emphasis on the root trajectory, 3 of J*3 channels. (Measured on the demo: weight 10 did not
-    # change goal following; the input path of pinned entries did, see docs/models.md.)
+    # emphasis on the root trajectory, 3 of J*3 channels. Plain by default: a heavier weight did
+    # not improve goal following on the demo, the input path of pinned entries did (docs/models.md).
     pelvis_loss_weight: float = 1.0
     log_every: int = 50
     val_every: int = 500             # 0 disables validation

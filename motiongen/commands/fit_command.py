@@ -11,7 +11,7 @@ are accepted and the first 22 used; optional key `fps`) or a motiongen dataset d
 with `seq`. Writes `params.npz` (or `params_s{i}.npz` per sample; AMASS SMPL-X layout, see
 `motiongen.body.fit.save_amass_npz`), `report.json` (MPJPE before/after refinement) and, with
 the procedural body model (or mesh=true), a per-frame mesh sequence under `mesh/`.
-`foot_vel.weight` > 0 adds seed 002's foot velocity term (`motiongen.body.foot_velocity`):
+`foot_vel.weight` > 0 adds LEMO's foot velocity term (`motiongen.body.foot_velocity`):
 feet within `foot_vel.z_thres` m of `floor_y` (mask=height) or flagged by contact labels
 (mask=contact: the dataset sequence's `contact.npy`, or the npz key `contact`) are held below
 `foot_vel.a` m/s.
@@ -26,8 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
+from motiongen.body.fit import RefineConfig, default_mlp, fit_joints, save_amass_npz
+from motiongen.body.model import load_body_model
+from motiongen.body.train_mlp import load_mlp
 from motiongen.cli import parse_key_values, tool_main
+from motiongen.data.format import MotionDataset
 from motiongen.errors import ConfigError, DataError
+from motiongen.metrics import foot_skating_ratio
+from motiongen.rates import DATA_FPS
 from motiongen.skeleton import FOOT_JOINTS, NUM_BODY_JOINTS
 
 SPEC = {"input": (str, None), "out": (str, None), "seq": (str, None), "body.model_path": (str, None),
@@ -46,8 +52,6 @@ def load_input(opts: dict) -> tuple[np.ndarray, float, str]:
     """-> joints (S, T, 22, 3) float32, fps, description."""
     path = Path(opts["input"])
     if path.is_dir():
-        from motiongen.data.format import MotionDataset
-
         if not opts["seq"]:
             raise ConfigError("input is a dataset directory: name the sequence with seq=NAME")
         ds = MotionDataset.open(path)
@@ -63,7 +67,7 @@ def load_input(opts: dict) -> tuple[np.ndarray, float, str]:
             if "joints" not in z.files:
                 raise DataError(path, "joints", f"required key is missing (keys: {', '.join(z.files)})")
             joints = np.asarray(z["joints"])
-            fps = float(z["fps"]) if "fps" in z.files else 30.0
+            fps = float(z["fps"]) if "fps" in z.files else DATA_FPS
     except DataError:
         raise
     except Exception as e:
@@ -94,8 +98,6 @@ def load_contact(opts: dict, S: int, T: int) -> np.ndarray:
     (S, T, 4) in FOOT_JOINTS order (left ankle, left toe, right ankle, right toe)."""
     path = Path(opts["input"])
     if path.is_dir():
-        from motiongen.data.format import MotionDataset
-
         ds = MotionDataset.open(path, check_values=False)
         seq = next(s for s in ds.sequences if s.name == opts["seq"])
         return np.asarray(ds.contact[seq.start:seq.end])[None][..., list(FOOT_JOINTS)]
@@ -116,7 +118,7 @@ def load_contact(opts: dict, S: int, T: int) -> np.ndarray:
 
 def export_meshes(bm, fit, out_dir: Path, fmt: str, max_frames: int) -> int:
     """Per-frame meshes (every k-th frame, at most max_frames) -> number written."""
-    import trimesh
+    import trimesh  # trimesh's exporters load only when meshes are written
 
     T = fit.transl.shape[0]
     stride = max(1, math.ceil(T / max(max_frames, 1)))
@@ -134,10 +136,6 @@ def export_meshes(bm, fit, out_dir: Path, fmt: str, max_frames: int) -> int:
 
 def run(argv: list[str]) -> dict:
     opts = parse_args(argv)
-    from motiongen.body.fit import RefineConfig, fit_joints, save_amass_npz
-    from motiongen.body.model import load_body_model
-    from motiongen.metrics import foot_skating_ratio
-
     joints, fps, desc = load_input(opts)
     if opts["fps"] is not None:
         fps = opts["fps"]
@@ -152,12 +150,8 @@ def run(argv: list[str]) -> dict:
     elif mlp != "auto":
         if not Path(mlp).is_file():
             raise DataError(mlp, None, "MLP checkpoint not found (use mlp=auto or mlp=none)")
-        from motiongen.body.train_mlp import load_mlp
-
         mlp = load_mlp(mlp, device=opts["device"])
     if mlp == "auto":
-        from motiongen.body.fit import default_mlp
-
         print("preparing the default joints->SMPL-X MLP (trained once, then cached)...", flush=True)
         mlp = default_mlp(bm, verbose=False)
     cfg = RefineConfig(w_foot_vel=opts["foot_vel.weight"], foot_vel_a=opts["foot_vel.a"],

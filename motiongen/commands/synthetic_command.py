@@ -5,6 +5,8 @@ from __future__ import annotations
 import time
 
 from motiongen.cli import parse_key_values, tool_main
+from motiongen.data.format import MotionDataset
+from motiongen.synthetic import generate
 
 SPEC = {"out": (str, None), "size": (str, "default"), "seed": (int, 0), "overwrite": (bool, False),
         "workers": (int, None)}
@@ -12,9 +14,6 @@ USAGE = "motiongen synthetic out=DIR [size=default|small] [seed=0] [overwrite=tr
 
 
 def run(argv: list[str]) -> None:
-    from motiongen.data.format import MotionDataset
-    from motiongen.synthetic import generate
-
     opts = parse_key_values(argv, SPEC, required=("out",), usage=USAGE,
                             doc="Generate the embedded synthetic human-scene dataset into out=DIR.")
     t0 = time.perf_counter()

@@ -1,0 +1,99 @@
+"""`motiongen evaluate` (evaluate.py): the static/dynamic protocol (TRUMANS supplement A.1) on
+the test scenes of the checkpoint's dataset, with the dataset's own motion as a reference row,
+reported as report.json, report.md and plots/ in `out` and, with `run_dir=`, in TensorBoard.
+The keys: EvaluateConfig (motiongen/eval/evaluate_config.py) through configs/evaluate.yaml;
+docs/evaluation.md explains every column."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from motiongen.body.model import load_body_model
+from motiongen.commands.hydra_app import hydra_command
+from motiongen.data.format import MotionDataset
+from motiongen.errors import ConfigError
+from motiongen.eval.evaluate_config import EvaluateConfig, dataset_config, protocol_config
+from motiongen.eval.mocap import mocap_body_metrics
+from motiongen.eval.pairs import SETTINGS
+from motiongen.eval.protocol import evaluate
+from motiongen.eval.report import build_report, log_tensorboard, markdown, write_report
+from motiongen.importers.sources import open_dataset
+from motiongen.loading.keys import checkpoint_path, load_checkpoint_model
+from motiongen.sampling.settings import SamplerSettings
+
+
+def run(cfg: EvaluateConfig, default_out: Path) -> dict:
+    """The whole `evaluate` run. Returns the report dict."""
+    ckpt = checkpoint_path(cfg)
+    settings = chosen_settings(cfg.settings)
+    loaded = load_checkpoint_model(cfg)
+    ds = open_dataset(dataset_config(cfg.data, loaded.config), verbose=True)
+    scenes = chosen_scenes(cfg.scenes, ds)
+    if set(loaded.joint_set.names) != set(ds.joint_set.names):
+        raise ConfigError(f"the checkpoint's joints ({len(loaded.joint_set.names)}) differ from the dataset's "
+                          f"({len(ds.joint_set.names)}): evaluate on the data it was trained on")
+    protocol, sampler = protocol_config(cfg), SamplerSettings.of(cfg)
+    ev = evaluate(loaded, ds, scenes, protocol, settings, sampler, progress=cfg.progress,
+                  log=lambda m: print(m, flush=True), body_model=load_body_model(cfg.body_model))
+    meta = {"ckpt": str(ckpt), "step": loaded.step, "dataset": str(ds.root), "scenes": scenes, "k": cfg.k,
+            "pairs": cfg.pairs, "sampler": sampler.sampler, "steps": sampler.steps, "eta": sampler.eta,
+            "guidance_scale": sampler.guidance_scale, "seed": cfg.seed, "settings": settings,
+            "protocol": {k: (list(v) if isinstance(v, tuple) else v) for k, v in protocol.__dict__.items()},
+            "device": cfg.device, "precision": loaded.precision, "torch_threads": torch.get_num_threads(),
+            "goal_pinned": not loaded.predict_goal}
+    if cfg.mocap:
+        meta["mocap_row"] = mocap_body_metrics([cfg.mocap] if isinstance(cfg.mocap, str) else list(cfg.mocap), ds.fps)
+    report = build_report(ev, meta)
+    report["meta"].pop("mocap_row", None)
+    md = markdown(report)
+    out = Path(cfg.out) if cfg.out else Path(default_out)
+    written, images = write_report(out, report, md, ev, f"{ckpt.name} step {loaded.step}", cfg.plots)
+    if cfg.run_dir:
+        log_tensorboard(Path(cfg.run_dir), {**report, "_markdown": md}, images, loaded.step)
+    print(md, flush=True)
+    print(f"wrote {len(written)} files to {out} (report.json, report.md, plots/)" +
+          (f"; logged to TensorBoard in {cfg.run_dir}" if cfg.run_dir else ""), flush=True)
+    return report
+
+
+def chosen_settings(value) -> list[str]:
+    """The `settings` key: one setting or a list of them, all of SETTINGS when null."""
+    settings = [value] if isinstance(value, str) else list(value if value is not None else SETTINGS)
+    bad = [s for s in settings if s not in SETTINGS]
+    if bad or not settings:
+        raise ConfigError(f"settings: expected a non-empty subset of {list(SETTINGS)}, got {settings}")
+    return settings
+
+
+def chosen_scenes(value, ds: MotionDataset) -> list[int]:
+    """The `scenes` key: ids among the dataset's test scenes, all of them when null."""
+    test = [s for s in ds.splits.get("test", []) if s in ds.scenes]
+    if not test:
+        raise ConfigError(f"dataset {ds.root} has no test scenes (splits: "
+                          f"{ {k: len(v) for k, v in ds.splits.items()} }); set data.splits")
+    if value is None:
+        return test
+    scenes = [value] if isinstance(value, (int, str)) else list(value)
+    try:
+        scenes = [int(s) for s in scenes]
+    except (TypeError, ValueError):
+        raise ConfigError(f"scenes: expected a list of scene ids, got {scenes!r}") from None
+    unknown = [s for s in scenes if s not in test]
+    if unknown or not scenes:
+        raise ConfigError(f"scenes: {unknown or scenes} not among the test scenes of {ds.root} "
+                          f"({', '.join(str(s) for s in test)})")
+    return scenes
+
+
+def _app(cfg: DictConfig, run_dir: Path) -> None:
+    run(OmegaConf.to_object(cfg), run_dir)
+
+
+main = hydra_command("evaluate", _app)
+
+
+if __name__ == "__main__":
+    main()

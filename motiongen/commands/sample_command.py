@@ -1,0 +1,202 @@
+"""`motiongen sample` (sample.py): resolve the scene, goals and checkpoint named by the keys,
+generate, write the outputs. The keys: SampleConfig (motiongen/sampling/sample_config.py)
+through configs/sample.yaml; docs/sampling.md.
+
+Outputs (all written to temporary names in `out` and renamed at the very end, so a failed
+run leaves nothing half-written): motion.npz, motion.mp4 (or .gif), trajectories.png,
+summary.json, and on request body_<s>.npz (SMPL-X, AMASS layout) and motion_<s>.bvh.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from motiongen.body.fit import fit_joints, save_amass_npz
+from motiongen.body.model import load_body_model
+from motiongen.bvh.export import export_bvh
+from motiongen.commands.hydra_app import hydra_command
+from motiongen.errors import ConfigError
+from motiongen.export.trajectory_plot import plot_trajectories
+from motiongen.export.video import render_video, video_suffix
+from motiongen.loading.build import LoadedModel
+from motiongen.loading.keys import checkpoint_path, load_checkpoint_model
+from motiongen.routing import WalkableMap, walkable_map
+from motiongen.sampling.autoregressive import generate
+from motiongen.sampling.goal_input import load_goals_file, parse_goals
+from motiongen.sampling.goals import Goal, Route, check_actions, check_point, plan_route
+from motiongen.sampling.outputs import body_figures, motion_arrays, summary_lines
+from motiongen.sampling.sample_config import SampleConfig
+from motiongen.sampling.scene_setup import SceneInfo, default_route_goals, default_start, resolve_scene
+from motiongen.sampling.settings import Motion, SamplerSettings
+from motiongen.staging import StagedOutputs
+
+
+@dataclass
+class Sampled:
+    """One run's model, scene, route and motion: what the output files are written from."""
+
+    ckpt: Path
+    loaded: LoadedModel
+    scene: SceneInfo
+    fmap: WalkableMap | None       # the walkable floor map; None on an empty floor
+    route: Route
+    motion: Motion
+    body_model: object             # the motion's BodyModel
+
+
+def run(cfg: SampleConfig, default_out: Path) -> dict:
+    """The whole `sample` run. Returns the summary dict."""
+    t0 = time.perf_counter()
+    ckpt = checkpoint_path(cfg)
+    out = Path(cfg.out) if cfg.out else Path(default_out)
+    goals, file_start = given_goals(cfg)             # cheap checks first: the goals before the model
+    loaded = load_checkpoint_model(cfg)
+    scene = resolve_scene(cfg.scene, loaded.config, cfg.voxel_size, cfg.scene_up, cfg.objects)
+    fmap = walkable_map(scene.grid, cfg.body_radius, tuple(cfg.body_height)) if scene.grid is not None else None
+    route = plan(cfg, scene, fmap, loaded.action_names, goals, file_start)
+    print(f"sampling: {ckpt} (step {loaded.step}, {loaded.precision} layers) in {scene.label}, {len(route.goals)} "
+          f"goal(s), {len(route.subgoals)} subgoals, {cfg.num_samples} sample(s)", flush=True)
+    body_model = load_body_model(cfg.body_model)
+    gen = torch.Generator(device=loaded.device if loaded.device.type != "mps" else "cpu").manual_seed(cfg.seed)
+    motion = generate(loaded, scene.grid, route.start, route=route, walkable=fmap, start_yaw=cfg.start_yaw,
+                      objects=scene.objects, sampler=SamplerSettings.of(cfg), num_samples=cfg.num_samples,
+                      generator=gen, loop=cfg.loop, body_model=body_model,
+                      log=(lambda m: print(m, flush=True)) if cfg.verbose else None)
+    summary, lines, written = write_outputs(cfg, out, Sampled(ckpt, loaded, scene, fmap, route, motion, body_model), t0)
+    for line in lines:
+        print(line, flush=True)
+    print("wrote: " + ", ".join(str(p) for p in written), flush=True)
+    return summary
+
+
+def given_goals(cfg: SampleConfig) -> tuple[list[Goal], np.ndarray | None]:
+    """The user's goals, from goals_file= or the command line (not both), and the goals file's
+    start (None when it gives none)."""
+    file_goals, file_start = ([], None)
+    if cfg.goals_file:
+        file_goals, file_start = load_goals_file(cfg.goals_file, cfg.action_seconds)
+    cli_goals = parse_goals(cfg.goals, cfg.actions, cfg.durations, cfg.action_seconds)
+    if file_goals and cli_goals:
+        raise ConfigError("give goals either on the command line (goals=...) or in goals_file=, not both")
+    return file_goals or cli_goals, file_start
+
+
+def plan(cfg: SampleConfig, scene: SceneInfo, fmap: WalkableMap | None, action_names, goals: list[Goal],
+         file_start: np.ndarray | None) -> Route:
+    """The route through the goals from the start: the user's, or a default route where the
+    user gives no goals (in a synthetic scene or on an empty floor)."""
+    start = np.asarray(cfg.start, np.float64) if cfg.start is not None else file_start
+    if start is not None and np.asarray(start).shape != (2,):
+        raise ConfigError(f"start: expected [x, z], got {cfg.start!r}")
+    if not goals:
+        if str(cfg.scene or "").startswith("synthetic:") or scene.grid is None:
+            d_start, goals = default_route_goals(scene, fmap, action_names, np.random.default_rng(cfg.seed))
+            start = d_start if start is None else start
+        else:
+            raise ConfigError("no goals given: use goals=[[x,z],...] or goals_file=PATH")
+    check_actions(goals, action_names)
+    if start is None:
+        start = default_start(fmap, goals[0].xz)
+    route = plan_route(start, goals, fmap if cfg.path == "astar" else None, cfg.path, cfg.subgoal_spacing)
+    if cfg.path == "straight" and fmap is not None:
+        # Straight lines still need valid points.
+        check_point(fmap, start, "start")
+        for i, g in enumerate(goals):
+            check_point(fmap, g.xz, f"goal {i + 1}", g.interacts)
+    return route
+
+
+def write_outputs(cfg: SampleConfig, out: Path, res: Sampled, t0: float) -> tuple[dict, list[str], list[Path]]:
+    """Every output file, staged and renamed together: (summary, report lines, files written)."""
+    out.mkdir(parents=True, exist_ok=True)
+    stage = StagedOutputs(out)
+    try:
+        sampler = SamplerSettings.of(cfg)
+        extra = {"ckpt": str(res.ckpt), "scene": res.scene.label, "sampler": sampler.sampler, "steps": sampler.steps,
+                 "eta": sampler.eta, "guidance_scale": sampler.guidance_scale, "seed": cfg.seed,
+                 "precision": res.loaded.precision}
+        tmp = stage.tmp("motion.npz")
+        np.savez(tmp, **motion_arrays(res.motion, extra))
+        stage.add(tmp, "motion.npz")
+        goals_xz = np.stack([g.xz for g in res.route.goals])
+        if cfg.plot:
+            tmp = plot_trajectories(stage.tmp("trajectories.png"), res.motion.joints, res.fmap, res.route.path,
+                                    res.route.subgoals, goals_xz, res.motion.arrival_frame,
+                                    title=f"{res.scene.label} — {res.ckpt.name}")
+            stage.add(tmp, "trajectories.png")
+        if cfg.video:
+            write_video(stage, cfg, res, goals_xz)
+        write_exports(stage, cfg, res)
+        figures = body_figures(res.motion)
+        lines = summary_lines(res.motion, sampler, figures)
+        summary = summary_dict(res, sampler, figures, t0)
+        tmp = stage.tmp("summary.json")
+        tmp.write_text(json.dumps(summary, indent=2))
+        stage.add(tmp, "summary.json")
+        return summary, lines, stage.commit()
+    except BaseException:
+        stage.abort()
+        raise
+
+
+def write_video(stage: StagedOutputs, cfg: SampleConfig, res: Sampled, goals_xz: np.ndarray) -> None:
+    motion, tv = res.motion, time.perf_counter()
+    tmp = render_video(stage.tmp("motion" + video_suffix()), motion.joints, motion.fps,
+                       res.loaded.joint_set.parents, res.scene.grid, res.fmap, res.route.path, res.route.subgoals,
+                       goals_xz, video_fps=cfg.video_fps, title=f"{res.scene.label}", bodies=motion.bodies,
+                       body_model=res.body_model, planted=motion.planted,
+                       contact_joints=res.loaded.layout.contact_joints, style=cfg.video_style)
+    stage.add(tmp, "motion" + tmp.suffix)
+    print(f"video: {motion.joints.shape[1] / motion.fps:.1f} s rendered in {time.perf_counter() - tv:.1f} s", flush=True)
+
+
+def write_exports(stage: StagedOutputs, cfg: SampleConfig, res: Sampled) -> None:
+    """On request, each sample as BVH (bvh=true) and as SMPL-X parameters (body=true)."""
+    motion, S = res.motion, res.motion.num_samples
+    if cfg.bvh:
+        for s in range(S):
+            name = "motion.bvh" if S == 1 else f"motion_{s}.bvh"
+            stage.add(export_bvh(stage.tmp(name), motion.joints[s], motion.fps), name)
+    if cfg.body:
+        for s in range(S):
+            name = "body.npz" if S == 1 else f"body_{s}.npz"
+            if motion.bodies is not None:
+                # The motion is already a body: its own SMPL-X parameters, no second fit.
+                fit = motion.bodies[s].as_fit(motion.joints[s])
+            else:
+                fit = fit_joints(motion.joints[s][:, :22], res.body_model)
+                print(f"body fit sample {s}: MPJPE {fit.mpjpe * 1000:.1f} mm", flush=True)
+            stage.add(save_amass_npz(stage.tmp(name), fit, motion.fps), name)
+
+
+def summary_dict(res: Sampled, sampler: SamplerSettings, figures: dict, t0: float) -> dict:
+    """summary.json: the motion's size and rate, its body figures, arrivals and timings."""
+    motion = res.motion
+    return {"frames": int(motion.joints.shape[1]), "fps": motion.fps, "duration_s": motion.duration,
+            "body": figures,
+            "num_samples": motion.num_samples, "episodes": int(len(motion.episode_starts)),
+            "completed": motion.completed,
+            "arrival_error_m": np.where(np.isfinite(motion.arrival_error), motion.arrival_error, -1).tolist(),
+            "arrival_error_body_m": np.where(np.isfinite(motion.arrival_error_body),
+                                             motion.arrival_error_body, -1).tolist(),
+            "generation_s": motion.wall_time, "real_time_factor": motion.real_time_factor,
+            "total_s": time.perf_counter() - t0, "sampler": sampler.__dict__,
+            "precision": res.loaded.precision}
+
+
+def _app(cfg: DictConfig, run_dir: Path) -> None:
+    run(OmegaConf.to_object(cfg), run_dir)
+
+
+main = hydra_command("sample", _app)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,41 @@
+"""The keys of every app that runs a trained checkpoint (`sample`, `evaluate`) and the loading
+of the model they name."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from motiongen.errors import ConfigError, DataError
+from motiongen.loading.build import LoadedModel, load_model
+
+
+@dataclass
+class CheckpointKeys:
+    ckpt: str | None = None        # required: a checkpoint written by train.py
+    device: str = "cpu"            # cpu | cuda | cuda:N
+    threads: int = 0               # torch CPU threads (0 = torch's default)
+    # fp32 | bf16 | auto: the denoiser's transformer layers in bfloat16 for sampling; auto = bf16
+    # for paper-size layers, which run faster in it on a CPU, fp32 for small ones (docs/sampling.md).
+    precision: str = "auto"
+    body_model: str | None = None  # SMPL-X .npz of the motion's body; None = $MOTIONGEN_SMPLX_MODEL, else the procedural model
+
+
+def checkpoint_path(keys: CheckpointKeys) -> Path:
+    """The `ckpt` key, which every such app requires."""
+    if not keys.ckpt:
+        raise ConfigError("ckpt=PATH is required (a checkpoint written by train.py)")
+    return Path(keys.ckpt)
+
+
+def load_checkpoint_model(keys: CheckpointKeys) -> LoadedModel:
+    """The model of `keys.ckpt` on `keys.device` at `keys.precision`, with torch's CPU threads
+    set first when `keys.threads` asks for a number."""
+    ckpt = checkpoint_path(keys)
+    if not ckpt.is_file():
+        raise DataError(ckpt, None, "checkpoint file does not exist")
+    if keys.threads > 0:
+        torch.set_num_threads(keys.threads)
+    return load_model(ckpt, keys.device, precision=keys.precision)

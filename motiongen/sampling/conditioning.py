@@ -1,0 +1,115 @@
+"""What the network is told for one episode: the window's frame, the pinned frames and goal
+(normalised), which entries are known, the local occupancy around the target and the
+per-frame action labels.
+
+The window is canonicalised at its first frame (the previous episode's first pinned frame), as
+training windows are, so the pinned frames look like training data. The first episode has no
+history: its frame is the start pose and nothing but the target is given.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from motiongen.diffusion.masks import known_mask
+from motiongen.geometry import canonical_frame, invert_rigid, transform_points
+from motiongen.models import Condition
+from motiongen.sampling.episode import LoopSpec, Tail
+from motiongen.sampling.progress import Targets
+from motiongen.sampling.scene_query import SceneQuery
+from motiongen.skeleton import PELVIS
+
+GOAL_XZ = [3 * PELVIS + 0, 3 * PELVIS + 2]          # the pelvis x, z channels
+GOAL_Y = 3 * PELVIS + 1
+
+
+@dataclass
+class NetworkInputs:
+    """One episode's inputs to the denoiser, for all S samples."""
+
+    pinned: int                    # k frames pinned at the start (0 for the first episode)
+    to_world: np.ndarray           # (S, 4, 4) the window's local -> world frame
+    known: np.ndarray              # (S, L, D) float32 normalised values of the known entries
+    mask: torch.Tensor             # (S, L, D) bool known entries, on the network's device
+    labels: np.ndarray             # (S, L) int action index per frame
+    cond: Condition                # scene (S, Hy, Hx, Hz) and actions (S, L, A)
+
+
+def condition_episode(spec: LoopSpec, loaded, query: SceneQuery, tail: Tail | None, t: Targets) -> NetworkInputs:
+    """The inputs that sample one window for all samples towards the world targets `t`."""
+    S, L, D, A = spec.samples, spec.length, spec.channels, len(loaded.action_names)
+    pinned = 0 if tail is None else spec.transition
+    to_world = (np.repeat(spec.start_frame[None], S, 0) if tail is None
+                else canonical_frame(tail.joints[:, 0]))                                      # (S, 4, 4)
+    inv = invert_rigid(to_world)                                                             # world -> local
+    local_t = local_target(inv, t.target, spec.reach)
+    known, give_y = known_values(loaded.stats, loaded.layout, inv, tail, local_t, t.height, L)
+    mask = known_mask(S, L, loaded.joint_set.num_joints, transition=pinned, goal_xz=True,
+                      goal_y=torch.from_numpy(give_y), goal_joint=PELVIS, channels=D)         # (S, L, D)
+    labels = np.repeat(t.label[:, None], L, 1)                                               # (S, L)
+    if pinned:
+        labels[:, :pinned] = tail.labels
+    cond = Condition(scene=query(target_frame(to_world, local_t)),
+                     actions=torch.from_numpy(one_hot(labels, A)).to(spec.device) if A else None)
+    return NetworkInputs(pinned, to_world, known, mask.to(spec.device), labels, cond)
+
+
+def local_target(inv: np.ndarray, target: np.ndarray, reach: float) -> np.ndarray:
+    """World targets (S, 2) -> window-frame (S, 2) through inv (S, 4, 4) world -> local; a
+    target farther than `reach` is clamped onto it (the episode walks towards it, the next
+    one continues)."""
+    S = target.shape[0]
+    tgt3 = np.stack([target[:, 0], np.zeros(S), target[:, 1]], -1)                          # (S, 3)
+    local_t = transform_points(inv, tgt3[:, None])[:, 0][:, [0, 2]]                          # (S, 2)
+    dist = np.linalg.norm(local_t, axis=-1, keepdims=True)
+    return np.where(dist > reach, local_t * (reach / np.maximum(dist, 1e-9)), local_t)
+
+
+def known_values(stats, layout, inv: np.ndarray, tail: Tail | None, local_t: np.ndarray,
+                 height: np.ndarray | None, L: int) -> tuple[np.ndarray, np.ndarray]:
+    """(known (S, L, D) float32 normalised, give_y (S,) bool): the tail's frames (every channel,
+    stance too) in the window frame, the target's pelvis x, z at the last frame and, where
+    `height` (S,) is finite, its pelvis y (floor at y = 0)."""
+    S, D = local_t.shape[0], layout.channels
+    known = np.zeros((S, L, D), np.float32)
+    if tail is not None:
+        k = tail.joints.shape[1]                                                             # pinned frames
+        local_tail = transform_points(inv[:, None], tail.joints)                             # (S, k, J, 3)
+        known[:, :k] = stats.normalize(layout.encode(local_tail, tail.stance).astype(np.float32))
+    known[:, -1, GOAL_XZ] = goal_channels(stats, D, local_t)
+    give_y = np.isfinite(height) if height is not None else np.zeros(S, bool)
+    if give_y.any():
+        v = np.zeros((S, D), np.float32)
+        v[:, GOAL_Y] = np.where(give_y, height, 0.0)
+        known[:, -1, GOAL_Y] = stats.normalize(v)[:, GOAL_Y]
+    return known, give_y
+
+
+def goal_channels(stats, D: int, local_xz: np.ndarray) -> np.ndarray:
+    """Window-frame pelvis x, z (S, 2) in normalised units (S, 2): stats.normalize acts per
+    channel, so normalising a full vector that holds only the pelvis x, z gives the right
+    values in those two channels."""
+    v = np.zeros((local_xz.shape[0], D), np.float32)
+    v[:, GOAL_XZ[0]], v[:, GOAL_XZ[1]] = local_xz[:, 0], local_xz[:, 1]
+    return stats.normalize(v)[:, GOAL_XZ]
+
+
+def target_frame(to_world: np.ndarray, local_t: np.ndarray) -> np.ndarray:
+    """(S, 4, 4) local -> world frames at the targets, in the window's orientation, floor at
+    y = 0: where the scene is queried."""
+    S = local_t.shape[0]
+    at_goal = to_world.copy()
+    at_goal[:, :3, 3] = transform_points(to_world, np.stack([local_t[:, 0], np.zeros(S), local_t[:, 1]], -1)[:, None])[:, 0]
+    at_goal[:, 1, 3] = 0.0
+    return at_goal
+
+
+def one_hot(labels: np.ndarray, A: int) -> np.ndarray:
+    """(S, L) action indices (-1 = none) -> (S, L, A) float32 one-hot."""
+    act = np.zeros((*labels.shape, A), np.float32)
+    s_idx, f_idx = np.nonzero(labels >= 0)
+    act[s_idx, f_idx, labels[s_idx, f_idx]] = 1.0
+    return act
