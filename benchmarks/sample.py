@@ -67,6 +67,7 @@ def _random_loaded(preset: str, stride: int, length: int):
     return types.SimpleNamespace(model=model.eval().requires_grad_(False), diffusion=GaussianDiffusion(diffusion),
                                  stats=NormStats(center, half), joint_set=BODY, layout=layout,
                                  predict_goal=predicts_goal(mask, diffusion.prediction), fps=30.0,
+                                 model_fps=30.0 / window.stride,
                                  action_names=[f"a{i}" for i in range(10)], window=window,
                                  mask=mask, device=torch.device("cpu"))
 

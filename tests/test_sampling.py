@@ -56,6 +56,7 @@ def _loaded(model_cls=None):
     return types.SimpleNamespace(model=(model_cls or Oracle)(diffusion, stats).eval(), diffusion=diffusion,
                                  stats=stats, joint_set=BODY, action_names=["walk", "sit"], window=window,
                                  layout=Layout.for_window(window, BODY), predict_goal=False, fps=30.0,
+                                 model_fps=30.0 / window.stride,
                                  mask=MaskConfig(max_transition=2), device=torch.device("cpu"))
 
 

@@ -9,12 +9,12 @@ import pytest
 import torch
 import trimesh
 
-from motiongen.scene import loading as scene_mod
+from motiongen.scene import mesh_files as scene_mod
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.scene.local_occupancy import (DynamicObjects, GridBank, LocalGridSpec, TorchOccupancy,
                                             frames_from_pose, local_occupancy, local_occupancy_at,
                                             local_occupancy_np)
-from motiongen.scene.loading import load_scene_grid, load_scene_mesh
+from motiongen.scene.mesh_files import load_scene_grid, load_scene_mesh
 from motiongen.routing import walkable_map
 from motiongen.routing.walkable import open_floor
 from motiongen.scene.voxelize import voxelize_mesh

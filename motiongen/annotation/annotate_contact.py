@@ -31,7 +31,7 @@ from motiongen.data.contact_labels import VertexContactWriter
 from motiongen.annotation.contact_stats import penetration_table, plot_penetration, write_table
 from motiongen.scene.distance_field import MeshField, PlaneField, surface_distance
 from motiongen.data.format import SMPLX_FIELDS, MotionDataset, Sequence
-from motiongen.scene.loading import MESH_SUFFIXES, load_mesh_file
+from motiongen.scene.mesh_files import MESH_SUFFIXES, load_mesh_file
 from motiongen.errors import ConfigError, DataError
 from motiongen.skeleton import NUM_BODY_JOINTS
 

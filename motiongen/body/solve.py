@@ -46,8 +46,8 @@ SHAPE_PRIOR = 1e-3
 # w_smooth_joints by the model's frame rate (`sampling.assemble.solve_smoothness_for_rate`).
 # Swing clearance (w_clearance) keeps an unplanted foot joint from being pulled below the
 # predicted height: strong smoothing flattens a swing into a low, fast foot — foot skating.
-# On the 4-scene static check it took skating 0.168 -> 0.062 (15 fps quality model), 0.092 ->
-# 0.035 (demo) at equal PSKL (docs/quality.md); 30 did half as much, 3000 cost PSKL.
+# 300 removed most of that skating at equal PSKL; 30 did half as much and 3000 cost PSKL
+# (the 4-scene check in docs/results.md).
 SOLVE_CONFIG = RefineConfig(max_steps=80, w_contact=100.0, w_reach=30.0, w_smooth_joints=5.0, w_floor=1000.0, floor_y=0.003,
                             w_clearance=300.0, optimize_betas=False, w_prior=1e-3, threads=1)
 

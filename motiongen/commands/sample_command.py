@@ -65,7 +65,7 @@ def run(cfg: SampleConfig, default_out: Path) -> dict:
           f"goal(s), {len(route.subgoals)} subgoals, {cfg.num_samples} sample(s)", flush=True)
     body_model = load_body_model(cfg.body_model)
     gen = torch.Generator(device=loaded.device if loaded.device.type != "mps" else "cpu").manual_seed(cfg.seed)
-    motion = generate(loaded, scene.grid, route.start, route=route, walkable=fmap, start_yaw=cfg.start_yaw,
+    motion = generate(loaded, scene.grid, route=route, walkable=fmap, start_yaw=cfg.start_yaw,
                       objects=scene.objects, sampler=SamplerSettings.of(cfg), num_samples=cfg.num_samples,
                       generator=gen, loop=cfg.loop, body_model=body_model,
                       log=(lambda m: print(m, flush=True)) if cfg.verbose else None)

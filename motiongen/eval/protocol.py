@@ -67,7 +67,7 @@ def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler
     with warnings.catch_warnings():
         # generate warns when samples stop before the goal; the report counts them instead.
         warnings.simplefilter("ignore")
-        motion = generate(loaded, ctx.grid, pair.start, route=pair.route, walkable=ctx.fmap, objects=objs,
+        motion = generate(loaded, ctx.grid, route=pair.route, walkable=ctx.fmap, objects=objs,
                           sampler=sampler, num_samples=cfg.k, generator=gen, body_model=body_model,
                           loop=LoopConfig(max_episodes=cfg.max_episodes, out_fps=ctx.ds.fps, source_fps=ctx.ds.fps,
                                           **cfg.loop))

@@ -67,7 +67,7 @@ from motiongen.sampling.scene_query import SceneQuery
 from motiongen.sampling.settings import LoopConfig, Motion, SamplerSettings
 
 
-def generate(loaded, scene=None, start=None, *, route: Route, walkable: WalkableMap | None = None,
+def generate(loaded, scene=None, *, route: Route, walkable: WalkableMap | None = None,
              start_yaw: float | None = None, objects: Sequence[tuple] = (),
              sampler: SamplerSettings = SamplerSettings(), num_samples: int = 1,
              generator: torch.Generator | None = None, loop: LoopConfig = LoopConfig(), log=None,
@@ -77,9 +77,8 @@ def generate(loaded, scene=None, start=None, *, route: Route, walkable: Walkable
     loaded: a `LoadedModel` (loading.build.load_model). scene: an OccupancyGrid or None
     (empty floor, no bounds). route: a `goals.plan_route` / `goals.plan_scene_route` result
     (the goals, their actions from loaded.action_names, and the subgoals); the motion starts
-    at route.start (`start`, if given, is not read: callers pass route.start). walkable: the
-    map the route was planned on; look-ahead targets must be in line of sight on it (None:
-    every subgoal is). start_yaw: the start heading (None: facing the first subgoal).
+    at route.start. walkable: the map the route was planned on; look-ahead targets must be in
+    line of sight on it (None: every subgoal is). start_yaw: the start heading (None: facing the first subgoal).
     objects: [(object OccupancyGrid, pose (4, 4) object -> world)] placed in the scene.
     generator: torch.Generator for the diffusion noise (reproducible runs).
     body_model: the `BodyModel` of the motion's body (default `load_body_model()`: the user's

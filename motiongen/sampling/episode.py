@@ -67,8 +67,8 @@ def loop_spec(loaded, route: Route, num_samples: int, loop: LoopConfig, start_ya
                           f"{most}); got {k}")
     if k > most:
         warnings.warn(f"pinning {k} transition frames; the model was trained with at most {most}")
-    source_fps = float(loop.source_fps if loop.source_fps is not None else loaded.fps)
-    model_fps = source_fps / loaded.window.stride
+    # The checkpoint's own rate unless the caller names the data's rate (evaluation does).
+    model_fps = loaded.model_fps if loop.source_fps is None else float(loop.source_fps) / loaded.window.stride
     blend_s = LoopConfig.seam_blend if loop.seam_blend is None else float(loop.seam_blend)
     return LoopSpec(num_samples, L, loaded.layout.channels, k, model_fps, model_reach(loaded.stats, loop),
                     loaded.predict_goal and not loop.pin_goal, round(blend_s * model_fps),

@@ -14,7 +14,7 @@ from motiongen.errors import ConfigError
 from motiongen.importers.sources import DataConfig, open_dataset
 from motiongen.routing import WalkableMap
 from motiongen.sampling.goals import Goal, plan_route
-from motiongen.scene.loading import load_scene_grid
+from motiongen.scene.mesh_files import load_scene_grid
 from motiongen.scene.voxelize import voxelize_mesh
 from motiongen.synthetic.scenes import make_scene
 
