@@ -9,7 +9,7 @@ docs/CONTRACTS.md.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -210,7 +210,3 @@ class WindowDataset(Dataset):
             return None
         vs = self.ds.grid(self.ds.sequences[0].scene).voxel_size
         return voxelize_mesh(mesh, voxel_size=vs)
-
-
-def window_config_dict(cfg: WindowConfig) -> dict:
-    return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()}

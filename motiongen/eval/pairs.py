@@ -13,7 +13,7 @@ import numpy as np
 
 from motiongen.errors import ConfigError
 from motiongen.eval.scene_context import SceneContext
-from motiongen.sampling.goals import Goal, Route, plan_route
+from motiongen.sampling.goals import Goal, Route, path_length, plan_route
 
 SETTINGS = ("static", "dynamic")
 MAX_ACTION_SECONDS = 10.0
@@ -54,7 +54,7 @@ class Pair:
                 "start": [round(float(v), 4) for v in self.start],
                 "end": [round(float(v), 4) for v in self.goal.xz], "action": self.goal.action,
                 "duration_s": self.goal.duration, "object_id": self.object_id,
-                "path_length_m": round(float(np.linalg.norm(np.diff(self.route.path, axis=0), axis=-1).sum()), 4),
+                "path_length_m": round(path_length(self.route.path), 4),
                 "subgoals": int(len(self.route.subgoals))}
 
 
