@@ -71,7 +71,9 @@ def test_sigkill_then_resume_is_bitwise_identical(dataset, tmp_path):
     p = subprocess.Popen([sys.executable, str(ROOT / "train.py"), *_args(dataset, run, steps)], cwd=ROOT, env=env,
                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 300
-    while not (run / "checkpoints" / "step_00000003.pt").exists():
+    # last.pt is linked just after the step file is renamed in: wait for the link, or a kill
+    # between the two leaves a run with no checkpoint yet (a fresh start, not a resume)
+    while not (run / "checkpoints" / "last.pt").exists():
         assert p.poll() is None and time.time() < deadline, "training ended before the first checkpoint"
         time.sleep(0.01)
     p.send_signal(signal.SIGKILL)
