@@ -7,6 +7,6 @@ dataset's own motion as a reference row: report.json, report.md and plots/ in `o
 """
 
 if __name__ == "__main__":
-    from motiongen.commands.evaluate_command import main
+    from motiongen.commands import run_script
 
-    main()
+    run_script("evaluate")

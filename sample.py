@@ -7,6 +7,6 @@ Same as `motiongen sample ...`.
 """
 
 if __name__ == "__main__":
-    from motiongen.commands.sample_command import main
+    from motiongen.commands import run_script
 
-    main()
+    run_script("sample")

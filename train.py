@@ -6,6 +6,6 @@ Same as `motiongen train ...`.
 """
 
 if __name__ == "__main__":
-    from motiongen.commands.train_command import main
+    from motiongen.commands import run_script
 
-    main()
+    run_script("train")

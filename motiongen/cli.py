@@ -8,6 +8,7 @@ import contextlib
 import dataclasses
 import functools
 import io
+import os
 import sys
 import typing
 from pathlib import Path
@@ -36,8 +37,27 @@ def _register_resolvers() -> None:
 _register_resolvers()     # every Hydra entry point imports this module before hydra.main runs
 
 
+INTERRUPTED = 130      # 128 + SIGINT: the status a shell gives a program that Ctrl-C ended
+
+
+class Interrupted(KeyboardInterrupt):
+    """A Ctrl-C that knows what the run leaves behind: its message ends the one line
+    `interrupted: <message>` (e.g. the last checkpoint to resume from)."""
+
+
+def ending_line(e: BaseException) -> str | None:
+    """The one line a run ended by `e` prints instead of a traceback: `error: ...` for a user
+    error, `interrupted[: ...]` for Ctrl-C; None for anything else (a bug keeps its traceback)."""
+    if isinstance(e, MotiongenError):
+        return f"error: {e}"
+    if isinstance(e, KeyboardInterrupt):
+        return "interrupted" + (f": {e}" if str(e) else "")
+    return None
+
+
 def user_errors_exit_2(fn: F) -> F:
-    """Wrap a CLI entry point so a `MotiongenError` prints `error: <message>` and exits 2.
+    """Wrap a CLI entry point so a `MotiongenError` prints `error: <message>` and exits 2, and
+    Ctrl-C prints `interrupted[: <what is left>]` and exits 130, each one line, no traceback.
 
     Hydra catches exceptions raised inside a `@hydra.main` function and prints its own
     traceback, so apply this *inside* (below) `@hydra.main`: the function exits before Hydra
@@ -48,16 +68,19 @@ def user_errors_exit_2(fn: F) -> F:
     def wrapper(*args, **kwargs):
         try:
             return fn(*args, **kwargs)
-        except MotiongenError as e:
-            print(f"error: {e}", file=sys.stderr, flush=True)
-            sys.exit(2)
+        except (MotiongenError, KeyboardInterrupt) as e:
+            # Ctrl-C under torchrun reaches every rank: rank 0 alone says so (and where to resume).
+            if not (isinstance(e, KeyboardInterrupt) and os.environ.get("RANK", "0") not in ("", "0")):
+                print(ending_line(e), file=sys.stderr, flush=True)
+            sys.exit(2 if isinstance(e, MotiongenError) else INTERRUPTED)
 
     return wrapper  # type: ignore[return-value]
 
 
 def tool_main(run: Callable[[list[str]], object], report: Callable[[object], None] | None = None) -> Callable:
     """The `main(argv=None)` of a small tool: `run(argv)` (sys.argv[1:] by default), then
-    `report(result)`; a user error is one line and exit status 2 (`user_errors_exit_2`)."""
+    `report(result)`; a user error is one line and exit status 2, Ctrl-C one line and exit
+    status 130 (`user_errors_exit_2`)."""
 
     @user_errors_exit_2
     def main(argv: list[str] | None = None) -> int:
@@ -87,7 +110,7 @@ def _hydra_flags() -> argparse.ArgumentParser:
 
 
 def check_hydra_overrides(argv: list[str] | None = None, config_name: str | None = None,
-                          config_dir=None) -> None:
+                          config_dir=None) -> Path | None:
     """Exit 2 with one line if a command-line override of a Hydra app is malformed.
 
     Hydra parses overrides inside `hydra.main`, before our function (and so
@@ -99,14 +122,15 @@ def check_hydra_overrides(argv: list[str] | None = None, config_name: str | None
     With `config_name` and `config_dir` (motiongen/configs), the overrides are also composed
     against the config once (about a tenth of a second), so an unknown key, a value of the wrong
     type or a missing option of a config group is one line and exit 2 too, instead of Hydra's
-    message and exit 1. Sweeps (`-m`, `a=1,2`) are left to Hydra.
+    message and exit 1, and the run directory they compose to is returned (None where nothing
+    was composed). Sweeps (`-m`, `a=1,2`) are left to Hydra.
     """
     argv = sys.argv[1:] if argv is None else argv
     try:
         with contextlib.redirect_stderr(io.StringIO()):
             args, _ = _hydra_flags().parse_known_args(argv)
     except SystemExit:
-        return                      # a bad flag: Hydra's own usage message says it
+        return None                 # a bad flag: Hydra's own usage message says it
     parser = OverridesParser.create()
     parsed = []
     for override in args.overrides:
@@ -122,13 +146,18 @@ def check_hydra_overrides(argv: list[str] | None = None, config_name: str | None
             sys.exit(2)
     if config_name is not None and config_dir is not None and not args.multirun \
             and not any(o.is_sweep_override() for o in parsed):
-        _check_composes(list(args.overrides), config_name, config_dir)
+        return _check_composes(list(args.overrides), config_name, config_dir)
+    return None
 
 
-def _check_composes(overrides: list[str], config_name: str, config_dir) -> None:
+def _check_composes(overrides: list[str], config_name: str, config_dir) -> Path | None:
+    """The run directory `hydra.run.dir` the overrides compose to (None where it does not
+    resolve here); exit 2 with one line where they do not compose."""
     try:
         with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base="1.3"):
-            compose(config_name, overrides=overrides, return_hydra_config=True)
+            cfg = compose(config_name, overrides=overrides, return_hydra_config=True)
+            run_dir = OmegaConf.select(cfg, "hydra.run.dir", throw_on_resolution_failure=False)
+            return Path(run_dir) if run_dir else None
     except MissingConfigException as e:
         lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
         options = [ln for ln in lines[2:] if not ln.startswith(("Config search path", "provider="))]

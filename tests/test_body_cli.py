@@ -15,6 +15,7 @@ from motiongen.body.random_motion import sample_motion
 from motiongen.body.procedural import ensure_procedural_model
 from motiongen.commands.fit_command import main
 from tests.helpers import user_error
+from tests.run_inprocess import run_command
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -93,6 +94,29 @@ def test_fit_cli_user_errors(tmp_path, capsys, joints, model_path):
     assert "seq=" in user_error(capsys, main, [f"input={tmp_path}"] + base)
 
 
+# Keys and inputs that used to give wrong results or a traceback with exit 0: (extra keys,
+# how the joints are scaled, the message's words). Refused before anything is written.
+FIT_BAD = [
+    (["fps=0"], 1, "fps: expected a number > 0"),
+    (["fps=-30"], 1, "fps: expected a number > 0"),
+    (["fps=nan"], 1, "fps: expected a number > 0"),
+    (["fps=1e9"], 1, "fps: expected a number > 0 and <= 1000"),
+    (["steps=-1"], 1, "steps: expected an integer >= 0"),
+    (["unit=km"], 1, "unit: expected one of m, cm, mm"),
+    ([], 100, "look like centimetres or millimetres; pass unit=cm"),          # joints in cm
+    (["unit=cm"], 1000, "look like centimetres or millimetres"),             # mm read as cm
+    ([], 1e30, "from the origin with unit=m"),
+]
+
+
+@pytest.mark.parametrize("extra, scale, message", FIT_BAD)
+def test_fit_cli_refuses_bad_keys_and_units(tmp_path, capsys, joints, extra, scale, message):
+    inp = tmp_path / "in.npz"
+    np.savez(inp, joints=joints[0] * scale)
+    assert message in user_error(capsys, main, [f"input={inp}", f"out={tmp_path / 'o'}", "mlp=none", *extra])
+    assert not (tmp_path / "o").exists()
+
+
 def test_fit_cli_subprocess_exit_code(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     r = subprocess.run([sys.executable, "-m", "motiongen.commands.fit_command", f"input={tmp_path / 'nope.npz'}", f"out={tmp_path}"],
@@ -100,7 +124,7 @@ def test_fit_cli_subprocess_exit_code(tmp_path):
     assert r.returncode == 2 and r.stderr.startswith("error: ") and "Traceback" not in r.stderr
 
 
-def test_train_mlp_entry_point(tmp_path, model_path):
+def test_train_mlp_entry_point(tmp_path, model_path, capsys):
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     out = tmp_path / "run"
     r = subprocess.run([sys.executable, "-m", "motiongen.commands.train_body_mlp_command", f"out={out}", "steps=4", "batch_size=16",
@@ -111,7 +135,11 @@ def test_train_mlp_entry_point(tmp_path, model_path):
     ckpt = torch.load(out / "mlp.pt", weights_only=True)
     assert ckpt["train_config"]["mlp"]["width"] == 32 and ckpt["mlp"]["width"] == 32
     assert any((out / "tb").iterdir())
-    bad = subprocess.run([sys.executable, "-m", "motiongen.commands.train_body_mlp_command", "steps=0", f"out={out}",
-                          f"body.model_path={model_path}", f"hydra.run.dir={tmp_path / 'hydra'}"],
-                         capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
-    assert bad.returncode == 2 and "error: " in bad.stderr and "Traceback" not in bad.stderr
+    # The bad-input rows in-process (the run above checked the module entry point).
+    for key, message in (("steps=0", "steps"), ("lr=-1", "lr: expected a number > 0"),
+                         ("device=tpu", "device: expected cpu, cuda"), ("bogus=1", "unknown key")):
+        bad = run_command("train-body-mlp", [key, f"out={out}", f"body.model_path={model_path}",
+                                             f"hydra.run.dir={tmp_path / 'hydra'}"], capsys)
+        lines = bad.stderr.strip().splitlines()
+        assert bad.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0], \
+            bad.stderr

@@ -24,6 +24,8 @@ from motiongen.bvh.retarget import bvh_to_body, import_bvh, resample
 from motiongen.bvh.detect import detect_up
 from motiongen.data.format import MotionDataset
 from motiongen.errors import DataError
+from motiongen.importers.bvh import main as bvh_main
+from tests.helpers import user_error
 from motiongen.metrics import foot_skating_ratio
 from motiongen.bvh.export import TEMPLATE, joints_to_bvh, smplx_to_bvh
 from motiongen.skeleton import BODY_JOINT_NAMES, BODY_PARENTS
@@ -473,3 +475,13 @@ def test_cli_imports_cmu(tmp_path):
     assert ds.fps == 30.0 and ds.num_frames == 688 and ds.meta["bvh_import"][0]["layout"] == "cmu"
     # feet are labelled in contact for a good part of a clip that is mostly standing and jumping
     assert 0.2 < ds.contact[:, [10, 11]].mean() < 0.95
+
+
+@pytest.mark.parametrize("fps, message", [("0", "fps: expected a number > 0"), ("1e9", "and <= 1000, got 1000000000.0"),
+                                          ("nan", "fps: expected a number > 0")])
+def test_cli_bounds_the_output_rate(walk, tmp_path, capsys, fps, message):
+    """fps=1e9 asked for billions of frames of every clip; now one line, nothing written."""
+    X, W, rest = walk
+    good, _ = synth_bvh(tmp_path / "good.bvh", X, W, rest)
+    assert message in user_error(capsys, bvh_main, [f"inputs=[{good}]", f"out={tmp_path / 'ds'}", f"fps={fps}"])
+    assert not (tmp_path / "ds").exists()

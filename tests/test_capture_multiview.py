@@ -221,9 +221,20 @@ def test_pose_prior_cli(tmp_path, bm, capsys):
     main([f"out={tmp_path / 'p.npz'}", f"amass=[{tmp_path / 'a.npz'}]", "dims=10"])
     p = load_prior(tmp_path / "p.npz")
     assert p.dims == 10 and np.allclose(p.mean, pose.mean(0), atol=1e-6)
-    with pytest.raises(SystemExit) as e:
-        main([f"out={tmp_path / 'q.npz'}"])
-    assert e.value.code == 2 and "exactly one of" in capsys.readouterr().err
+    a = tmp_path / "a.npz"
+    amass_bytes = a.read_bytes()
+    (tmp_path / "file").write_text("")
+    for argv, words in [([f"out={tmp_path / 'q.npz'}"], "exactly one of"),
+                        ([f"out={tmp_path / 'q.npz'}", "builtin=true", "dims=0"], "dims=0: expected 1..63"),
+                        ([f"out={tmp_path / 'q.npz'}", "builtin=true", "min_std=-1"], "min_std=-1.0: expected a positive"),
+                        ([f"out={tmp_path / 'q.npz'}", f"data.root={tmp_path / 'none'}"], "dataset directory does not exist"),
+                        ([f"out={tmp_path / 'q.npz'}", f"amass=[{tmp_path / 'none.npz'}]"], "AMASS file is missing"),
+                        (["out=/proc/q.npz", "builtin=true"], "out: cannot write under /proc"),
+                        ([f"out={tmp_path}", "builtin=true"], "exists and is not a file"),
+                        ([f"out={tmp_path / 'file' / 'q.npz'}", "builtin=true"], "is a file, not a directory"),
+                        ([f"out={a}", f"amass=[{a}]"], "the output is the input")]:   # never over an input
+        assert words in user_error(capsys, main, argv), argv
+    assert not (tmp_path / "q.npz").exists() and a.read_bytes() == amass_bytes
 
 
 # ---- objective ---------------------------------------------------------------------------------

@@ -104,3 +104,76 @@ def test_bad_values_are_config_errors_naming_the_key():
             loop_overrides(values)
     with pytest.raises(ConfigError, match="steps must be >= 1, got 0"):      # checked once, in SamplerSettings
         OmegaConf.to_object(_compose("sample", ["steps=0"]))
+
+
+# Every app's keys, refused where the config is built (before any model, scene or data is read):
+# (app, overrides, the start of the one-line message). The train group is built as set_up does.
+OUT_OF_RANGE = [
+    ("train", ["train.ema_decay=1.5"], "train.ema_decay: expected a number >= 0 and < 1, got 1.5"),
+    ("train", ["train.ema_decay=1"], "train.ema_decay: expected a number >= 0 and < 1"),
+    ("train", ["train.lr_schedule=cosin"], "train.lr_schedule: expected one of constant, cosine, got 'cosin'"),
+    ("train", ["train.batch_size=0"], "train.batch_size: expected an integer >= 1, got 0"),
+    ("train", ["train.log_every=0"], "train.log_every: expected an integer >= 1"),
+    ("train", ["train.lr=-1"], "train.lr: expected a number > 0, got -1.0"),
+    ("train", ["train.lr=nan"], "train.lr: expected a number > 0"),
+    ("train", ["train.lr=inf"], "train.lr: expected a number > 0"),
+    ("train", ["train.num_workers=-1"], "train.num_workers: expected an integer >= 0"),
+    ("train", ["train.cond_drop_scene=2"], "train.cond_drop_scene: expected a number >= 0 and <= 1"),
+    ("train", ["train.amp=fp8"], "train.amp: expected one of auto, bf16, none"),
+    ("sample", ["scene_up=x"], "scene_up: expected one of y, z, got 'x'"),
+    ("sample", ["scene_unit=km"], "scene_unit: expected one of m, cm, mm"),
+    ("sample", ["voxel_size=0"], "voxel_size: expected a number >= 0.005 and <= 0.5, got 0.0"),
+    ("sample", ["voxel_size=1e9"], "voxel_size: expected a number >= 0.005"),
+    ("sample", ["num_samples=1000000"], "num_samples: expected an integer >= 1 and <= 1024"),
+    ("sample", ["num_samples=0"], "num_samples: expected an integer >= 1"),
+    ("sample", ["steps=0"], "steps must be >= 1, got 0"),
+    ("sample", ["steps=100000"], "steps: expected an integer >= 1 and <= 10000"),
+    ("sample", ["start_yaw=inf"], "start_yaw: expected a number, got inf"),
+    ("sample", ["body_height=[1.7,0.1]"], "body_height[1]: expected a number > 1.7"),
+    ("sample", ["loop.max_episodes=0"], "loop.max_episodes: expected an integer >= 1"),
+    ("sample", ["loop.tolerance=-1"], "loop.tolerance: expected a number > 0"),
+    ("sample", ["loop.out_fps=1e9"], "loop.out_fps: expected a number > 0 and <= 1000"),
+    ("sample", ["video_fps=0"], "video_fps: expected a number > 0"),
+    ("evaluate", ["max_episodes=0"], "max_episodes: expected an integer >= 1 and <= 100000, got 0"),
+    ("evaluate", ["min_distance=-1"], "min_distance: expected a number >= 0 and <= 1000, got -1.0"),
+    ("evaluate", ["k=0"], "k: expected an integer >= 1"),
+    ("evaluate", ["k=5000"], "k: expected an integer >= 1 and <= 1024"),
+    ("evaluate", ["pairs=0"], "pairs: expected an integer >= 1"),
+    ("evaluate", ["mocap=/no/such/clips"], "mocap: /no/such/clips does not exist"),
+    ("evaluate", ["mocap=[/tmp,/no/such.bvh]"], "mocap: "),
+    ("train_body_mlp", ["lr=-1"], "lr: expected a number > 0, got -1.0"),
+    ("train_body_mlp", ["lr=0"], "lr: expected a number > 0"),
+    ("train_body_mlp", ["device=tpu"], "device: expected cpu, cuda, cuda:N or mps, got 'tpu'"),
+    ("train_body_mlp", ["data.fps=1e9"], "data.fps: expected a number > 0 and <= 1000"),
+    ("train_body_mlp", ["batch_size=0"], "batch_size: expected an integer >= 1"),
+]
+
+
+def _build(app, overrides):
+    """The app's config as its command builds it, before any work."""
+    from omegaconf import OmegaConf
+
+    from motiongen.training.train_config import TrainConfig
+
+    extra = ["ckpt=x.pt"] if app in ("sample", "evaluate") else []
+    cfg = _compose(app, [*extra, *overrides])
+    if app == "train":
+        return TrainConfig(**OmegaConf.to_container(cfg.train, resolve=True))
+    return OmegaConf.to_object(cfg)
+
+
+@pytest.mark.parametrize("app, overrides, message", OUT_OF_RANGE, ids=lambda v: v if isinstance(v, str) else None)
+def test_out_of_range_keys_are_one_config_error(app, overrides, message):
+    from motiongen.errors import ConfigError
+
+    with pytest.raises(ConfigError) as e:
+        _build(app, overrides)
+    assert "\n" not in str(e.value) and str(e.value).startswith(message), str(e.value)
+
+
+def test_valid_defaults_and_experiments_pass_the_range_checks():
+    for name in ("demo", "paper", "quality"):
+        _build("train", [f"experiment={name}"])
+    _build("sample", ["steps=8", "num_samples=1024", "loop.transition=2", "start_yaw=0.5"])
+    _build("evaluate", ["k=1", "min_distance=0"])
+    _build("train_body_mlp", [])

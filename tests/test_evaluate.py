@@ -15,6 +15,7 @@ from motiongen.eval.motion_scores import reference_metrics
 from motiongen.eval.pairs import SETTINGS, ProtocolConfig, make_pairs
 from motiongen.eval.scene_context import SceneContext
 from motiongen.eval.report import METRICS
+from tests.run_inprocess import run_command
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["model.width=32", "model.layers=1", "model.heads=2", "model.ff=64", "model.scene_width=32",
@@ -154,15 +155,19 @@ def test_evaluate_end_to_end(ckpt, tmp_path):
     (["data=dataset", "data.root=NOTEST"], "no test scenes"),
     (["loop.smooth=-1"], "loop.smooth: expected a number >= 0"),
     (["loop.foot_lock=maybe"], "loop.foot_lock: expected true or false"),
+    (["max_episodes=0"], "max_episodes: expected an integer >= 1"),
+    (["min_distance=-1"], "min_distance: expected a number >= 0"),
+    (["k=abc"], "k: expected an integer, got 'abc'"),
+    (["mocap=/no/such/clips.bvh"], "mocap: /no/such/clips.bvh does not exist"),   # before the evaluation, not after
 ])
-def test_evaluate_user_errors(ckpt, tmp_path, args, needle):
+def test_evaluate_user_errors(ckpt, tmp_path, args, needle, capsys):
     if "data.root=NOTEST" in args:
         from tests.helpers import make_dataset
 
         root = make_dataset(tmp_path / "notest", scenes=(1, 71), seqs_per_scene=1, T=60)
         args = [a.replace("NOTEST", str(root)) for a in args]
     a = [f"ckpt={ckpt}", f"out={tmp_path}", *args] if not args[0].startswith("ckpt=") else [f"out={tmp_path}", *args]
-    r = _run("evaluate.py", a, timeout=120)
+    r = run_command("evaluate", a, capsys)
     assert r.returncode == 2, (r.stdout[-1000:], r.stderr[-1000:])
     lines = [x for x in r.stderr.strip().splitlines() if x.strip()]
     assert len(lines) == 1 and lines[0].startswith("error:") and needle in lines[0], r.stderr

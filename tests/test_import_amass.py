@@ -15,6 +15,8 @@ from motiongen.body.fit import fit_joints, save_amass_npz
 from motiongen.body.model import load_body_model
 from motiongen.body.random_motion import sample_motion
 from motiongen.data.format import MotionDataset
+from motiongen.importers.amass import main as amass_main
+from tests.helpers import user_error
 from motiongen.importers.amass import import_amass
 from motiongen.errors import DataError
 from motiongen.skeleton import FOOT_JOINTS, HEAD, PELVIS
@@ -199,14 +201,22 @@ def test_cli_writes_a_dataset_whose_parameters_reproduce_its_joints(bm, tmp_path
     assert contact[seqs[2].start:, list(FOOT_JOINTS)].all() and not np.delete(contact, list(FOOT_JOINTS), 1).any()
 
 
-def test_cli_bad_input_exits_2_and_writes_nothing(bm, tmp_path):
+def test_cli_bad_input_exits_2_and_writes_nothing(bm, tmp_path, capsys):
     p, _ = known_motion(bm, 60, 60.0, seed=1)
     good = write_amass(tmp_path / "good.npz", bm, p, 60.0)
     bad = _bad("nan", tmp_path / "bad.npz", bm, p)
     for args, message in [((f"inputs=[{good},{bad}]",), f"error: {bad} [poses]: non-finite value"),
                           ((f"inputs=[{good}]", "up=x"), "error: up='x': expected z (AMASS) or y"),
                           ((f"inputs=[{good}]", f"body_model={tmp_path / 'none.npz'}"), f"error: {tmp_path / 'none.npz'}")]:
-        r = run_cli(*args, f"out={tmp_path / 'ds'}")
-        lines = r.stderr.strip().splitlines()
-        assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith(message), r.stderr
+        line = user_error(capsys, amass_main, [*args, f"out={tmp_path / 'ds'}"])
+        assert line.startswith(message), line
         assert not (tmp_path / "ds").exists() and not list(tmp_path.glob("ds.partial*"))
+
+
+@pytest.mark.parametrize("fps, message", [("1e7", "fps: expected a number > 0 and <= 1000"), ("-30", "fps: expected")])
+def test_cli_bounds_the_output_rate(bm, tmp_path, capsys, fps, message):
+    """fps=1e7 ran for minutes; now one line before any file is read, nothing written."""
+    p, _ = known_motion(bm, 60, 60.0, seed=3)
+    src = write_amass(tmp_path / "s.npz", bm, p, 60.0)
+    assert message in user_error(capsys, amass_main, [f"inputs=[{src}]", f"out={tmp_path / 'ds'}", f"fps={fps}"])
+    assert not (tmp_path / "ds").exists()

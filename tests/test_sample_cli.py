@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 import torch
 
+from tests.run_inprocess import run_command
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -52,8 +54,14 @@ def files(tmp_path_factory):
     wall = trimesh.creation.box([4.0, 1.5, 0.2], trimesh.transformations.translation_matrix([0, 0.75, 1.0]))
     floor = trimesh.creation.box([4.0, 0.02, 4.0], trimesh.transformations.translation_matrix([0, -0.01, 0]))
     scene = d / "room.obj"
-    trimesh.util.concatenate([box, wall, floor]).export(scene)
+    room = trimesh.util.concatenate([box, wall, floor])
+    room.export(scene)
+    room.apply_scale(100.0)
+    room.export(d / "room_cm.obj")                       # the same room in centimetres
     (d / "bad.ckpt").write_bytes(b"not a checkpoint")
+    diverged = torch.load(ck, weights_only=False)
+    next(iter(diverged["ema"].values())).fill_(float("inf"))
+    torch.save(diverged, d / "diverged.pt")
     (d / "goals.json").write_text(json.dumps({"goals": [[1.5, -1.0], {"xz": [-1.5, 0.5], "action": "sit", "duration": 0.5}]}))
     (d / "bad.json").write_text('{"goals": [[1.0]]}')
     return {"ckpt": ck, "scene": scene, "dir": d}
@@ -72,10 +80,11 @@ def test_end_to_end_writes_all_outputs(files, tmp_path):
                 "loop.max_episodes=6", "loop.warmup=1", "video_fps=5", f"out={out}", "threads=1"],
                {"MOTIONGEN_CACHE": os.environ["MOTIONGEN_CACHE"]})
     stdout, stderr = p.communicate(timeout=300)
-    assert p.returncode == 0, stderr[-2000:]
+    assert p.returncode == 3, stderr[-2000:]            # all written; the random model reached no goal
     names = sorted(f.name for f in out.iterdir())
     video = "motion.mp4" if "motion.mp4" in names else "motion.gif"
-    assert names == sorted(["motion.npz", video, "trajectories.png", "summary.json", "motion_0.bvh", "motion_1.bvh"])
+    assert names == sorted(["motion.npz", video, "trajectories.png", "summary.json", "motion_0.bvh", "motion_1.bvh",
+                            ".motiongen-outputs.json"])                   # the manifest of this output set
     with np.load(out / "motion.npz", allow_pickle=False) as z:
         assert z["joints"].shape[0] == 2 and z["joints"].shape[2:] == (22, 3) and float(z["fps"]) == 30.0
         assert z["goals"].shape == (2, 2) and list(z["goal_actions"]) == ["", "sit"]
@@ -98,24 +107,25 @@ BAD = {
     "missing_scene": (["goals=[[1.5,-1.0]]", "scene={dir}/nothing.obj"], "scene mesh file or folder is missing"),
     "bad_goals_file": (["goals_file={dir}/bad.json"], "goals[0]"),
     "bad_precision": (["goals=[[1.5,-1.0]]", "precision=fp16"], "precision: expected one of fp32, bf16, auto"),
+    "diverged_ckpt": (["goals=[[1.5,-1.0]]", "ckpt={dir}/diverged.pt"], "diverged.pt [ema]: non-finite weights"),
+    "goal_far": (["goals=[[1e300,0.0]]"], "goals[0]: expected a point [x, z] of two numbers within"),
+    "negative_duration": (["goals=[[1.5,-1.0]]", "durations=[-5]"], "durations[0]: expected a number >= 0"),
+    "scene_up": (["goals=[[1.5,-1.0]]", "scene_up=x"], "scene_up: expected one of y, z"),
+    "scene_in_cm": (["goals=[[1.5,-1.0]]", "scene={dir}/room_cm.obj"], "use scene_unit=cm"),
 }
 
 
-def test_bad_inputs_exit_2_with_one_line(files, tmp_path):
-    procs = {}
-    for name, (extra, _) in BAD.items():
-        args = [f"ckpt={files['ckpt']}", f"scene={files['scene']}", "start=[-1.5,-1.5]", f"out={tmp_path / name}"]
-        args += [a.format(dir=files["dir"]) for a in extra]
-        procs[name] = _popen(args, {"MOTIONGEN_CACHE": os.environ["MOTIONGEN_CACHE"]})
-    for name, p in procs.items():
-        _, stderr = p.communicate(timeout=300)
-        assert p.returncode == 2, (name, stderr[-1500:])
-        lines = [ln for ln in stderr.splitlines() if ln.strip()]
-        assert len(lines) == 1 and lines[0].startswith("error: "), (name, stderr[-1500:])
-        assert BAD[name][1] in lines[0], (name, lines[0])
-        assert "Traceback" not in stderr
-        out = tmp_path / name
-        assert not out.exists() or not any(out.iterdir()), (name, list(out.iterdir()))
+@pytest.mark.parametrize("name", list(BAD))
+def test_bad_inputs_exit_2_with_one_line(files, tmp_path, capsys, name):
+    extra, needle = BAD[name]
+    args = [f"ckpt={files['ckpt']}", f"scene={files['scene']}", "start=[-1.5,-1.5]", f"out={tmp_path / name}"]
+    r = run_command("sample", args + [a.format(dir=files["dir"]) for a in extra], capsys)
+    assert r.returncode == 2, r.stderr[-1500:]
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), r.stderr[-1500:]
+    assert needle in lines[0], lines[0]
+    out = tmp_path / name
+    assert not out.exists() or not any(out.iterdir()), list(out.iterdir())
 
 
 def test_obstacle_faces_hide_shared_sides():
@@ -162,6 +172,15 @@ def test_default_output_directory_is_a_timestamped_run_dir(files, tmp_path):
     r = subprocess.run([sys.executable, str(ROOT / "sample.py"), f"ckpt={files['ckpt']}", "video=false",
                         "goals=[[0.5,0.5]]", "loop.max_episodes=2"], cwd=tmp_path, env=env,
                        capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
+    assert r.returncode == 3, r.stderr                   # all written; the random model reached no goal
     runs = list((tmp_path / "runs" / "sample").iterdir())
     assert len(runs) == 1 and (runs[0] / "motion.npz").is_file() and (runs[0] / "summary.json").is_file()
+
+
+def test_scene_unit_scales_the_mesh_to_metres(files, tmp_path):
+    """scene_unit=cm reads the centimetre room as the metre one (the grid is the same)."""
+    from motiongen.scene.mesh_files import load_scene_grid
+
+    m = load_scene_grid(files["scene"], voxel_size=0.05, use_cache=False)
+    cm = load_scene_grid(files["dir"] / "room_cm.obj", voxel_size=0.05, use_cache=False, unit="cm")
+    assert m.shape == cm.shape and np.allclose(m.origin, cm.origin) and np.array_equal(m.bits, cm.bits)

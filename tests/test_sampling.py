@@ -17,7 +17,8 @@ from motiongen.errors import ConfigError
 from motiongen.metrics import bone_consistency, bone_lengths
 from motiongen.sampling import Goal, LoopConfig, SamplerSettings, generate, plan_scene_route
 from motiongen.sampling.assemble import blend_seam
-from motiongen.skeleton import BODY, BODY_PARENTS
+from motiongen.sampling.progress import output_arrival_errors, stall_rule
+from motiongen.skeleton import BODY, BODY_PARENTS, LEFT_HIP, PELVIS, RIGHT_HIP
 from tests.helpers import REST
 
 J, L = 22, 16
@@ -31,12 +32,19 @@ class Oracle(nn.Module):
         self.scene_encoder = None
         self.conditions = []
 
-    def forward(self, x_t, t, cond, known_mask=None):
+    def pinned(self, x_t, known_mask):
+        """The window in world units (B, L, J, 3), its known entries, the number k of pinned
+        transition frames and the last pinned pose (the rest pose when none)."""
         B = x_t.shape[0]
         x = self.stats.denormalize(x_t.detach().double()).reshape(B, L, J, 3)
         m = known_mask.reshape(B, L, J, 3)
         k = int(m[0, :, 1:].all(-1).all(-1).sum())                    # pinned transition frames
         last = x[:, k - 1] if k else torch.as_tensor(REST, dtype=x.dtype).expand(B, J, 3)
+        return x, m, k, last
+
+    def forward(self, x_t, t, cond, known_mask=None):
+        B = x_t.shape[0]
+        x, m, k, last = self.pinned(x_t, known_mask)
         goal = x[:, -1, 0, [0, 2]]                                     # (B, 2) pinned pelvis x, z
         step = (goal - last[:, 0, [0, 2]]) / (L - max(k, 1))           # per frame
         i = torch.arange(L, dtype=x.dtype) - max(k - 1, 0)             # frames after the last pinned one
@@ -48,14 +56,26 @@ class Oracle(nn.Module):
         return self.diffusion.eps_from_x0(x_t, x0n, t)
 
 
-def _loaded(model_cls=None):
+class Still(Oracle):
+    """A model that never moves: every free frame holds the last pinned pose, whatever the goal
+    (load it with predict_goal=True, or the goal written into the last frame would move it)."""
+
+    def forward(self, x_t, t, cond, known_mask=None):
+        x, m, k, last = self.pinned(x_t, known_mask)
+        x0 = last[:, None].repeat(1, L, 1, 1)
+        x0[:, :k] = x[:, :k]
+        x0n = self.stats.normalize(x0.reshape(x_t.shape[0], L, J * 3)).to(x_t.dtype)
+        return self.diffusion.eps_from_x0(x_t, x0n, t)
+
+
+def _loaded(model_cls=None, predict_goal=False):
     # the oracle returns ε; no clipping: world offsets leave [-1, 1]
     diffusion = GaussianDiffusion(DiffusionConfig(clip_x0=1e6, prediction="eps"))
     stats = NormStats(np.zeros(J * 3, np.float32), np.full(J * 3, 2.0, np.float32))
     window = WindowConfig(representation="absolute", contact_joints=())
     return types.SimpleNamespace(model=(model_cls or Oracle)(diffusion, stats).eval(), diffusion=diffusion,
                                  stats=stats, joint_set=BODY, action_names=["walk", "sit"], window=window,
-                                 layout=Layout.for_window(window, BODY), predict_goal=False, fps=30.0,
+                                 layout=Layout.for_window(window, BODY), predict_goal=predict_goal, fps=30.0,
                                  model_fps=30.0 / window.stride,
                                  mask=MaskConfig(max_transition=2), device=torch.device("cpu"))
 
@@ -126,6 +146,8 @@ def test_max_episodes_warns_and_unknown_action_errors():
         m = _generate(_loaded(), [Goal([0.0, 8.0])], sampler=SamplerSettings("ddim", 2),
                       loop=LoopConfig(max_episodes=2))
     assert not m.completed and np.isnan(m.arrival_error).all()
+    assert m.goal_outcome.tolist() == [["episode limit"]]
+    assert [(f["goal"], f["reason"]) for f in m.failed_goals()] == [(1, "episode limit")]
     with pytest.raises(ConfigError, match="knows: walk, sit"):
         _generate(_loaded(), [Goal([0.0, 1.0], "dance")])
 
@@ -180,3 +202,95 @@ def test_blend_seam_continues_the_pinned_velocity():
     # nothing to carry without two pinned frames, or with no frames to fade over
     np.testing.assert_array_equal(blend_seam(x, 1, n), x)
     np.testing.assert_array_equal(blend_seam(x, k, 0), x)
+
+
+def test_a_body_that_stands_still_stalls_and_the_loop_ends_early():
+    goals = [Goal([0.0, 3.0]), Goal([2.0, 4.0])]
+    with pytest.warns(UserWarning, match="stopped early, no progress for loop.stall_s=3 s: sample 0 reached 0/2"):
+        m = _generate(_loaded(Still, predict_goal=True), goals, generator=torch.Generator().manual_seed(0),
+                      sampler=SamplerSettings("ddim", 2), loop=LoopConfig(stall_s=3.0, max_episodes=200))
+    assert not m.completed
+    # one episode to measure from, 3 s (30 model frames at 10 fps, 14 a window) without progress
+    walks = [e for e in m.episodes if e.kind == "walk"]
+    assert len(walks) == 4 and len(m.episodes) == 2 + 4                 # the 2 warm-up episodes
+    assert m.goal_outcome.tolist() == [["stalled", "not attempted"]]
+    failed = m.failed_goals()
+    assert [(f["sample"], f["goal"], f["reason"]) for f in failed] == [(0, 1, "stalled"), (0, 2, "not attempted")]
+    assert failed[0]["distance_m"] == pytest.approx(3.0, abs=0.05)
+
+
+def test_stalled_sample_idles_while_the_others_walk_on():
+    """Sample 1 stands still, sample 0 walks: the first stalls and idles where it stopped, the
+    loop goes on until the second has reached its goal; stall_s=0 turns the rule off."""
+
+    class Half(Oracle):
+        def forward(self, x_t, t, cond, known_mask=None):
+            eps = super().forward(x_t, t, cond, known_mask)
+            eps[1] = Still.forward(self, x_t, t, cond, known_mask)[1]
+            return eps
+
+    kw = dict(num_samples=2, generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 2))
+    with pytest.warns(UserWarning, match="sample 1 reached 0/1"):
+        m = _generate(_loaded(Half, predict_goal=True), [Goal([0.0, 6.0])], loop=LoopConfig(stall_s=2.0), **kw)
+    assert m.goal_outcome.tolist() == [["reached"], ["stalled"]] and not m.completed
+    assert m.finish_frame[0] > 0 and m.finish_frame[1] == -1
+    assert len([e for e in m.episodes if e.kind == "walk"]) >= 4                         # went on after the stall
+    pelvis = m.joints[1, :, 0, [0, 2]]                                                     # (T, 2) the still one
+    assert np.abs(pelvis - pelvis[0]).max() < 0.05
+    with pytest.warns(UserWarning, match="stopped after max_episodes=4"):
+        off = _generate(_loaded(Half, predict_goal=True), [Goal([0.0, 6.0])],
+                        loop=LoopConfig(stall_s=0, max_episodes=4), **kw)
+    assert off.goal_outcome.tolist() == [["episode limit"], ["episode limit"]]
+
+
+def test_an_oracle_run_completes_and_reports_every_goal_reached():
+    m = _generate(_loaded(), [Goal([1.0, 2.0]), Goal([0.0, 3.5], "sit", 0.5)], generator=torch.Generator().manual_seed(0),
+                  sampler=SamplerSettings("ddim", 2), loop=LoopConfig(stall_s=3.0))
+    assert m.completed and m.failed_goals() == []
+    assert m.goal_outcome.tolist() == [["reached", "reached"]]
+    # The goal errors printed and saved are the output's (after smoothing and the final solve):
+    # the output pelvis comes that close to each goal within 0.5 s of its arrival frame.
+    pel = m.joints[0, :, PELVIS][:, [0, 2]]
+    for g, goal in enumerate(m.route.goals):
+        a, w = int(m.arrival_frame[0, g]), int(0.5 * m.fps)
+        near = np.linalg.norm(pel[max(a - w, 0):a + w + 1] - goal.xz, axis=-1).min()
+        assert abs(near - m.arrival_error[0, g]) < 1e-5, (g, near, m.arrival_error[0, g])
+
+
+def test_output_arrival_errors_closed_form():
+    """A pelvis walking along x past a goal 0.3 m to its side: the closest approach is 0.3 m, at
+    the frame it passes; outside the 0.5 s window around the arrival frame nothing counts."""
+    T, fps = 90, 30.0
+    joints = np.zeros((1, T, 22, 3))
+    x = np.linspace(-1.5, 1.5, T)                                               # 1 m/s
+    joints[0, :, :, 0] = x[:, None]
+    joints[0, :, LEFT_HIP, 2], joints[0, :, RIGHT_HIP, 2] = 0.1, -0.1           # hips straddle the pelvis
+    goals = np.array([[0.0, 0.3], [1.5, 0.0]])
+    arrival = np.array([[45, -1]])
+    pel, hips = output_arrival_errors(joints, arrival, goals, fps)
+    assert abs(pel[0, 0] - np.hypot(x[np.abs(x).argmin()], 0.3)) < 1e-12 and abs(hips[0, 0] - pel[0, 0]) < 1e-12
+    assert np.isnan(pel[0, 1]) and np.isnan(hips[0, 1])
+    far, _ = output_arrival_errors(joints, np.array([[0, -1]]), goals, fps)      # arrival 1.5 s before passing
+    assert abs(far[0, 0] - np.hypot(x[15], 0.3)) < 1e-12                         # the window's nearest frame
+
+
+@pytest.mark.parametrize("stall_s", [-1.0, float("inf"), float("nan")])
+def test_stall_s_must_be_seconds(stall_s):
+    with pytest.raises(ConfigError, match="loop.stall_s"):
+        LoopConfig(stall_s=stall_s)
+
+
+def test_stall_rule():
+    """Progress: a subgoal passed (or an action), or 0.1 m closer than the best since the last
+    progress; small steps count once they add up; the clock runs from the last progress."""
+    best, moved = np.array([np.inf, 2.0, 2.0, 2.0]), np.array([-1, 10, 10, 10])
+    passed = np.array([False, True, False, False])
+    best, moved, stalled = stall_rule(best, moved, passed, np.array([5.0, 3.0, 1.95, 2.5]), 40, limit=30)
+    assert best.tolist() == [5.0, 3.0, 2.0, 2.0] and moved.tolist() == [40, 40, 10, 10]
+    assert stalled.tolist() == [False, False, True, True]
+    one = lambda b, m, d, now: stall_rule(np.array([b]), np.array([m]), np.array([False]), np.array([d]), now, 30)  # noqa: E731
+    assert not one(2.0, 10, 1.95, 39)[2][0]                            # 29 frames: not yet
+    best, moved, _ = one(2.0, 10, 1.95, 20)                            # 5 cm closer: not progress ...
+    assert (best[0], moved[0]) == (2.0, 10)
+    best, moved, _ = one(best[0], moved[0], 1.89, 30)                  # ... 11 cm closer in two steps: progress
+    assert (best[0], moved[0]) == (1.89, 30)

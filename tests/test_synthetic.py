@@ -10,6 +10,7 @@ from motiongen.synthetic import ACTIONS, SIZES, _scene_job, generate
 from motiongen.commands.synthetic_command import main as cli_main
 from motiongen.errors import ConfigError, DataError
 from motiongen.skeleton import BODY, FOOT_JOINTS, HAND_JOINTS
+from tests.helpers import user_error
 
 FPS = 30
 A = {name: i for i, name in enumerate(ACTIONS)}
@@ -177,11 +178,15 @@ def test_generate_rejects_bad_values(tmp_path):
 
 
 def test_cli_errors_exit_2(tmp_path, capsys):
-    for argv in (["out=" + str(tmp_path / "a"), "size=huge"], ["out=" + str(tmp_path / "a"), "seed=x"],
-                 ["size=small"], ["out=" + str(tmp_path)], ["bogus"]):
-        with pytest.raises(SystemExit) as e:
-            cli_main(argv)
-        assert e.value.code == 2
-        err = capsys.readouterr().err
-        assert err.startswith("error: ") and err.count("\n") == 1, argv
+    a = f"out={tmp_path / 'a'}"
+    (tmp_path / "file").write_text("")
+    for argv, words in ([[a, "size=huge"], "size must be one of"], [[a, "seed=x"], "expected an integer"],
+                        [["size=small"], "missing out="], [[f"out={tmp_path}"], "already exists"],
+                        [["bogus"], "bogus"], [[a, "workers=-3"], "workers: expected an integer >= 1"],
+                        [[a, "workers=0"], "workers: expected an integer >= 1"],
+                        [["out=/proc/ds", "size=small"], "out: cannot write under /proc"],
+                        [[f"out={tmp_path / 'file'}", "size=small"], "exists and is not a directory"],
+                        [[f"out={tmp_path / 'file' / 'ds'}", "size=small"], "is a file, not a directory"]):
+        assert words in user_error(capsys, cli_main, argv), argv
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]             # nothing written, no partial
     assert json.dumps(ACTIONS)  # vocabulary is plain strings

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from tests.helpers import make_dataset
+from tests.run_inprocess import run_command
 
 ROOT = Path(__file__).resolve().parents[1]
 # A very small model so each step takes milliseconds; dropout stays on (RNG must resume too).
@@ -112,7 +113,10 @@ def test_two_process_ddp(dataset, tmp_path, per_rank):
     assert r.stdout.count("checkpoint:") == 1               # rank 0 alone reports/writes
 
 
-def test_user_errors_exit_2(dataset, tmp_path):
+def test_user_errors_exit_2(dataset, tmp_path, capsys):
+    def _run(args):
+        return run_command("train", args, capsys)
+
     r = _run(_args(dataset, tmp_path, 4, **{"train.resume": str(tmp_path / "missing.pt")}))
     assert r.returncode == 2 and "missing.pt" in r.stderr and "Traceback" not in r.stderr
     r = _run(_args(tmp_path / "no_such_dataset", tmp_path, 4))
@@ -121,6 +125,50 @@ def test_user_errors_exit_2(dataset, tmp_path):
     assert r.returncode == 2 and "batch_size" in r.stderr
     r = _run(_args(dataset, tmp_path, 4, **{"model.temporal_basis": 8, "diffusion": "paper"}))   # eps prediction
     assert r.returncode == 2 and "temporal_basis" in r.stderr and "Traceback" not in r.stderr
+    # Out-of-range keys (tests/test_config.py has the whole table): one line before any data is read.
+    r = _run(_args(dataset, tmp_path / "ema", 4, **{"train.ema_decay": 1.5}))
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        "error: train.ema_decay: expected a number >= 0 and < 1, got 1.5"], r.stderr
+    assert not (tmp_path / "ema" / "checkpoints").exists()
+
+
+def test_resume_from_another_model_or_diverged_weights_is_one_line(dataset, tmp_path, capsys):
+    """Resuming with another width (97 lines of load_state_dict before) or from a checkpoint
+    whose weights are NaN: one line naming the file."""
+    def _run(args):
+        return run_command("train", args, capsys)
+
+    r = _run(_args(dataset, tmp_path / "a", 3))
+    assert r.returncode == 0, r.stderr[-2000:]
+    last = tmp_path / "a" / "checkpoints" / "last.pt"
+    wider = [a.replace("model.width=32", "model.width=64") for a in _args(dataset, tmp_path / "b", 6)]
+    r = _run([*wider, f"train.resume={last}"])
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith(f"error: {last} [model]: weights of another "
+                                                                         "architecture than this run's config"), r.stderr
+    ck = _weights(last)
+    next(iter(ck["ema"].values())).fill_(float("nan"))
+    torch.save(ck, tmp_path / "nan.pt")
+    r = _run(_args(dataset, tmp_path / "c", 6, **{"train.resume": tmp_path / "nan.pt"}))
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "[ema]: non-finite weights" in lines[0], r.stderr
+
+
+def test_batch_that_does_not_split_over_processes(monkeypatch):
+    """Under torchrun, rank 0 says it in one line and the other ranks exit 2 silently (before
+    the process group, rather than 74 lines of both ranks' tracebacks)."""
+    from motiongen.errors import ConfigError
+    from motiongen.training.distributed import check_batch_split
+
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    monkeypatch.setenv("RANK", "0")
+    check_batch_split("train.batch_size", 8)
+    with pytest.raises(ConfigError, match=r"train.batch_size: 7 does not split evenly over 2 processes"):
+        check_batch_split("train.batch_size", 7)
+    monkeypatch.setenv("RANK", "1")
+    with pytest.raises(SystemExit) as e:
+        check_batch_split("train.batch_size", 7)
+    assert e.value.code == 2
 
 
 def test_non_finite_loss_stops_and_keeps_last_checkpoint(dataset, tmp_path):

@@ -33,6 +33,7 @@ from motiongen.scene.distance_field import MeshField, PlaneField, surface_distan
 from motiongen.data.format import SMPLX_FIELDS, MotionDataset, Sequence
 from motiongen.scene.mesh_files import MESH_SUFFIXES, load_mesh_file
 from motiongen.errors import ConfigError, DataError
+from motiongen.output_lock import OutputLock
 from motiongen.skeleton import NUM_BODY_JOINTS
 
 # The formats scene meshes are read in, .ply (what datasets store objects as) tried first.
@@ -242,8 +243,11 @@ def run(args: dict) -> AnnotationResult:
                         floor_y=args["floor_y"], scene=args["scene"], voxel_size=args["voxel_size"],
                         batch_frames=args["batch"])
     mlp = None if args["fit_mlp"] in ("none", "", None) else args["fit_mlp"]
-    return annotate_dataset(args["root"], cfg, args.get("body_model"), args.get("object_meshes"), mlp,
-                            args["overwrite"], args["progress"])
+    if not Path(args["root"]).is_dir():
+        raise DataError(args["root"], None, "dataset directory does not exist")
+    with OutputLock(args["root"], "annotate-contact"):   # the labels go into the dataset: one run at a time
+        return annotate_dataset(args["root"], cfg, args.get("body_model"), args.get("object_meshes"), mlp,
+                                args["overwrite"], args["progress"])
 
 
 def _report(r: AnnotationResult) -> None:

@@ -38,6 +38,7 @@ from motiongen.data.format import SMPLX_FIELDS, MotionDataset, Sequence
 from motiongen.data.dataset_writer import DatasetWriter
 from motiongen.errors import ConfigError, DataError
 from motiongen.metrics import bone_consistency
+from motiongen.output_lock import refuse_output_over_input
 from motiongen.data.representation import stance_labels
 from motiongen.skeleton import FOOT_JOINTS, NUM_BODY_JOINTS
 
@@ -196,6 +197,9 @@ def augment_dataset(root: str | Path, out: str | Path, cfg: AugmentConfig = Augm
                     overwrite: bool = False, progress: bool = True) -> AugmentResult:
     """Write the augmented sequences of the dataset at `root` as a new dataset at `out`."""
     _check(cfg)
+    # Before anything is read or labelled: the new dataset never replaces the source it is made of.
+    refuse_output_over_input(out, [root, object_meshes, body_model if not isinstance(body_model, BodyModel) else None],
+                             "out")
     log = (lambda m: print(m, file=sys.stderr, flush=True)) if progress else (lambda m: None)
     t0 = time.perf_counter()
     ctx = _context(root, out, cfg, body_model, object_meshes, overwrite, progress, log)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import os
+import pickle
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -24,6 +25,7 @@ from motiongen.body.mlp import JointsToBodyMLP, MLPConfig, canonicalise
 from motiongen.body.model import BodyModel, load_body_model
 from motiongen.body.random_motion import sample_motion
 from motiongen.body.rotations import axis_angle_to_matrix, rot6d_to_matrix
+from motiongen.checks import require_fps, require_range
 from motiongen.data.format import MotionDataset
 from motiongen.errors import ConfigError, DataError
 from motiongen.geometry import yaw_matrix
@@ -63,6 +65,39 @@ class TrainMLPConfig:
     mlp: MLPConfig = field(default_factory=MLPConfig)
     body: BodyConfig = field(default_factory=BodyConfig)
     data: DataConfig = field(default_factory=DataConfig)
+
+    def __post_init__(self):
+        """Every key's range and the device, checked once before the body model is loaded."""
+        r = require_range
+        r("steps", self.steps, 1, integer=True)
+        r("batch_size", self.batch_size, 1, 1 << 20, integer=True)
+        r("lr", self.lr, 0, lo_open=True)
+        for key in ("weight_decay", "w_rot", "w_joints", "w_betas"):
+            r(key, getattr(self, key), 0)
+        r("log_every", self.log_every, 1, integer=True)
+        r("threads", self.threads, 0, integer=True)
+        r("seed", self.seed, 0, integer=True)
+        r("body.num_betas", self.body.num_betas, 0, 300, integer=True)
+        r("data.num_sequences", self.data.num_sequences, 1, 1 << 20, integer=True)
+        r("data.seq_frames", self.data.seq_frames, 3, 1 << 20, integer=True)
+        require_fps("data.fps", self.data.fps)
+        r("data.edge_prob", self.data.edge_prob, 0, 1)
+        check_device(self.device)
+
+
+def check_device(name: str) -> torch.device:
+    """`device` as a torch device that this machine has: cpu, cuda, cuda:N or mps."""
+    try:
+        dev = torch.device(name)
+    except (RuntimeError, TypeError):
+        dev = None
+    if dev is None or dev.type not in ("cpu", "cuda", "mps"):
+        raise ConfigError(f"device: expected cpu, cuda, cuda:N or mps, got {name!r}")
+    if dev.type == "cuda" and not (torch.cuda.is_available() and (dev.index or 0) < torch.cuda.device_count()):
+        raise ConfigError(f"device={name}: no such CUDA device on this machine (use device=cpu)")
+    if dev.type == "mps" and not torch.backends.mps.is_available():
+        raise ConfigError("device=mps: MPS is not available on this machine (use device=cpu)")
+    return dev
 
 
 def _pool_from_dataset(cfg: DataConfig, num_betas: int):
@@ -195,8 +230,14 @@ def load_mlp(path: str | Path, device: str | torch.device = "cpu") -> JointsToBo
         if ckpt.get("kind") != "joints_to_body_mlp":
             raise KeyError("kind")
         return JointsToBodyMLP.from_checkpoint(ckpt).to(device)
+    except pickle.UnpicklingError:
+        # An MLP checkpoint holds tensors only; torch's advice on loading other objects is no help here.
+        raise DataError(path, None, "not a joints-to-body MLP checkpoint (it holds Python objects, like a motion "
+                                    "model from `motiongen train`); give the mlp.pt of `motiongen train-body-mlp`, "
+                                    "mlp=auto or mlp=none") from None
     except Exception as e:
-        raise DataError(path, None, f"not a joints-to-body MLP checkpoint ({type(e).__name__}: {e})") from None
+        raise DataError(path, None, f"not a joints-to-body MLP checkpoint ({type(e).__name__}: "
+                                    f"{str(e).splitlines()[0] if str(e) else ''})") from None
 
 
 def _plain(d):

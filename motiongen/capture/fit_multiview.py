@@ -28,6 +28,7 @@ from motiongen.capture.cameras import load_cameras
 from motiongen.capture.keypoints import load_keypoints2d, load_keypoints3d
 from motiongen.capture.multiview import MultiviewConfig, fit_multiview
 from motiongen.capture.pose_prior import load_prior
+from motiongen.checks import require_fps
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.errors import ConfigError
 from motiongen.skeleton import BODY_JOINT_NAMES
@@ -46,6 +47,8 @@ USAGE = "motiongen fit-multiview cameras=cams.json keypoints2d=kp2d.npz out=DIR 
 
 
 def config_from(opts: dict) -> MultiviewConfig:
+    # fps= checked as a key, before the keypoints file (whose own fps it replaces) is read
+    require_fps("fps", opts["fps"], allow_none=True)
     if opts["length_unit"] <= 0 or opts["rho"] <= 0:
         raise ConfigError("length_unit and rho must be positive")
     if opts["min_views"] < 2:

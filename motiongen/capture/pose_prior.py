@@ -33,10 +33,12 @@ import numpy as np
 import torch
 
 from motiongen.body.random_motion import sample_motion
+from motiongen.checks import require_output_path
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.data.format import MotionDataset
 from motiongen.errors import ConfigError, DataError
 from motiongen.importers.amass import load_amass
+from motiongen.output_lock import refuse_output_over_input
 
 FORMAT = "motiongen-pose-prior"
 POSE_DIM = 63
@@ -166,6 +168,8 @@ def run(argv: list[str]) -> PosePrior:
     sources = [bool(opts["data.root"]), bool(opts["amass"]), opts["builtin"]]
     if sum(sources) != 1:
         raise ConfigError(f"give exactly one of data.root=, amass=[...], builtin=true (usage: {USAGE})")
+    require_output_path("out", opts["out"], directory=False)
+    refuse_output_over_input(opts["out"], opts["amass"])
     if opts["builtin"]:
         prior = default_prior(opts["min_std"], opts["dims"])
     elif opts["data.root"]:

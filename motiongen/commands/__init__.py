@@ -10,7 +10,7 @@ module. `train`, `sample`, `evaluate` and `train-body-mlp` are Hydra application
 (motiongen/configs/<app>.yaml over the structured configs of motiongen/config.py; `--help`
 prints their whole config); the others take `key=value` arguments in the same override syntax
 and list their keys and defaults with `--help`. Every user error is one line on stderr and exit
-status 2.
+status 2; Ctrl-C is one line (`interrupted[: what is left]`) and exit status 130.
 """
 
 from __future__ import annotations
@@ -52,5 +52,21 @@ def main(argv: list[str] | None = None) -> None:
     if name not in COMMANDS:
         print(f"error: unknown command {name!r}; expected one of {', '.join(COMMANDS)}", file=sys.stderr)
         sys.exit(2)
-    module = importlib.import_module(COMMANDS[name][0])
-    sys.exit(module.main(rest) or 0)
+    sys.exit(_load(name).main(rest) or 0)
+
+
+def run_script(name: str) -> None:
+    """What the repository's root scripts (train.py, sample.py, evaluate.py) do: the command's
+    `main()` on sys.argv, with Ctrl-C during the imports one line too."""
+    _load(name).main()
+
+
+def _load(name: str):
+    """The module of command `name`, imported."""
+    try:
+        return importlib.import_module(COMMANDS[name][0])         # torch and friends: seconds
+    except KeyboardInterrupt:
+        # Ctrl-C before the command's own handler (motiongen.cli.user_errors_exit_2) is in place:
+        # the same one line and status; not imported from there, to keep `motiongen --help` fast.
+        print("interrupted", file=sys.stderr, flush=True)
+        sys.exit(130)

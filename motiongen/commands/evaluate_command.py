@@ -22,15 +22,27 @@ from motiongen.eval.protocol import evaluate
 from motiongen.eval.report import build_report, log_tensorboard, markdown, write_report
 from motiongen.importers.sources import open_dataset
 from motiongen.loading.keys import checkpoint_path, load_checkpoint_model
+from motiongen.output_lock import OutputLock, claim_run_dir, refuse_output_over_input
 from motiongen.sampling.settings import SamplerSettings
+from motiongen.staging import record_outputs
 
 
 def run(cfg: EvaluateConfig, default_out: Path) -> dict:
     """The whole `evaluate` run. Returns the report dict."""
     ckpt = checkpoint_path(cfg)
     settings = chosen_settings(cfg.settings)
+    # One live run per directory; without out= each run gets a directory of its own.
+    with OutputLock(cfg.out, "evaluate") if cfg.out else claim_run_dir(default_out, "evaluate") as lock:
+        return evaluate_and_write(cfg, lock.dir, ckpt, settings)
+
+
+def evaluate_and_write(cfg: EvaluateConfig, out: Path, ckpt: Path, settings: list[str]) -> dict:
+    """The evaluation and its report in `out`, replacing the report a previous run wrote there."""
     loaded = load_checkpoint_model(cfg)
     ds = open_dataset(dataset_config(cfg.data, loaded.config), verbose=True)
+    mocap = [cfg.mocap] if isinstance(cfg.mocap, str) else list(cfg.mocap or [])
+    for name in ("report.json", "report.md", "plots"):     # the report never goes over what the run reads
+        refuse_output_over_input(out / name, [ckpt, ds.root, *mocap], "out")
     scenes = chosen_scenes(cfg.scenes, ds)
     if set(loaded.joint_set.names) != set(ds.joint_set.names):
         raise ConfigError(f"the checkpoint's joints ({len(loaded.joint_set.names)}) differ from the dataset's "
@@ -49,8 +61,8 @@ def run(cfg: EvaluateConfig, default_out: Path) -> dict:
     report = build_report(ev, meta)
     report["meta"].pop("mocap_row", None)
     md = markdown(report)
-    out = Path(cfg.out) if cfg.out else Path(default_out)
     written, images = write_report(out, report, md, ev, f"{ckpt.name} step {loaded.step}", cfg.plots)
+    record_outputs(out, "evaluate", written, keep=[ckpt, *mocap])      # the previous run's extra plots go
     if cfg.run_dir:
         log_tensorboard(Path(cfg.run_dir), {**report, "_markdown": md}, images, loaded.step)
     print(md, flush=True)

@@ -2,13 +2,13 @@
 
     motiongen fit input=motion.npz out=DIR [body.model_path=SMPLX_NEUTRAL.npz]
         [mlp=auto|none|PATH] [steps=40] [mesh=auto|true|false] [mesh_format=obj|glb]
-        [mesh_max_frames=60] [fps=30] [device=cpu]
+        [mesh_max_frames=60] [fps=30] [unit=m|cm|mm] [device=cpu]
         [foot_vel.weight=0] [foot_vel.a=0.1] [foot_vel.z_thres=0.1] [foot_vel.mask=height|contact] [floor_y=0]
     motiongen fit input=DATASET_DIR seq=NAME out=DIR ...
 
 `input` is a joints npz (key `joints`: (T, 22, 3) or (S, T, 22, 3); 24 joints = body+index1
 are accepted and the first 22 used; optional key `fps`) or a motiongen dataset directory
-with `seq`. Writes `params.npz` (or `params_s{i}.npz` per sample; AMASS SMPL-X layout, see
+with `seq`; `unit` is the joints' length unit (scaled to metres). Writes `params.npz` (or `params_s{i}.npz` per sample; AMASS SMPL-X layout, see
 `motiongen.body.fit.save_amass_npz`), `report.json` (MPJPE before/after refinement) and, with
 the procedural body model (or mesh=true), a per-frame mesh sequence under `mesh/`.
 `foot_vel.weight` > 0 adds LEMO's foot velocity term (`motiongen.body.foot_velocity`):
@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -29,23 +30,55 @@ import numpy as np
 from motiongen.body.fit import RefineConfig, default_mlp, fit_joints, save_amass_npz
 from motiongen.body.model import load_body_model
 from motiongen.body.train_mlp import load_mlp
+from motiongen.checks import require_choice, require_fps, require_range
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.data.format import MotionDataset
 from motiongen.errors import ConfigError, DataError
 from motiongen.metrics import foot_skating_ratio
+from motiongen.output_lock import OutputLock, refuse_output_over_input
 from motiongen.rates import DATA_FPS
 from motiongen.skeleton import FOOT_JOINTS, NUM_BODY_JOINTS
+from motiongen.staging import StagedOutputs, record_outputs
+
+# The files a fit writes (report.json, params.npz or params_s<i>.npz).
+OUTPUT_NAMES = re.compile(r"report\.json|params(_s\d+)?\.npz")
 
 SPEC = {"input": (str, None), "out": (str, None), "seq": (str, None), "body.model_path": (str, None),
         "body.num_betas": (int, 10), "mlp": (str, "auto"), "steps": (int, None), "mesh": (str, "auto"),
         "mesh_format": (str, "obj"), "mesh_max_frames": (int, 60), "fps": (float, None), "device": (str, "cpu"),
         "foot_vel.weight": (float, 0.0), "foot_vel.a": (float, 0.10), "foot_vel.z_thres": (float, 0.10),
-        "foot_vel.mask": (str, "height"), "floor_y": (float, 0.0)}
+        "foot_vel.mask": (str, "height"), "floor_y": (float, 0.0), "unit": (str, "m")}
+UNITS_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+# The two farthest joints of one frame of a person (arms raised: about 2.3 m); joints farther
+# apart than this are in centimetres or millimetres (the fit then reported 16 m errors).
+MAX_BODY_EXTENT_M = 3.0
+MAX_COORD_M = 1e4                # metres from the origin: beyond, a typo or garbage (1e30)
 
 
 def parse_args(argv: list[str]) -> dict:
-    return parse_key_values(argv, SPEC, required=("input", "out"), usage="motiongen fit input=motion.npz out=DIR",
+    opts = parse_key_values(argv, SPEC, required=("input", "out"), usage="motiongen fit input=motion.npz out=DIR",
                             doc=__doc__)
+    require_range("steps", opts["steps"], 0, 100000, integer=True, allow_none=True)   # 0: the MLP's guess alone
+    require_fps("fps", opts["fps"], allow_none=True)
+    require_range("mesh_max_frames", opts["mesh_max_frames"], 0, integer=True)
+    require_range("floor_y", opts["floor_y"], -MAX_COORD_M, MAX_COORD_M)
+    require_choice("unit", opts["unit"], UNITS_M)
+    return opts
+
+
+def joints_in_metres(joints: np.ndarray, unit: str, desc: str) -> np.ndarray:
+    """The joints scaled from `unit` to metres, refused when their size says the unit is wrong."""
+    joints = joints * np.float32(UNITS_M[unit])
+    far = float(np.abs(joints).max())
+    if far > MAX_COORD_M:
+        raise DataError(desc, "joints", f"a joint {far:.3g} m from the origin with unit={unit} (at most "
+                                        f"{MAX_COORD_M:g} m): not joint positions")
+    extent = float(np.median(np.ptp(joints, axis=2).max(-1)))
+    if extent > MAX_BODY_EXTENT_M:
+        raise DataError(desc, "joints", f"a body {extent:.3g} m across with unit={unit} (at most "
+                                        f"{MAX_BODY_EXTENT_M:g} m): the joints look like centimetres or "
+                                        f"millimetres; pass unit=cm or unit=mm")
+    return joints
 
 
 def load_input(opts: dict) -> tuple[np.ndarray, float, str]:
@@ -116,14 +149,15 @@ def load_contact(opts: dict, S: int, T: int) -> np.ndarray:
     return c[..., list(FOOT_JOINTS)] if widths[c.shape[2]] else c
 
 
-def export_meshes(bm, fit, out_dir: Path, fmt: str, max_frames: int) -> int:
-    """Per-frame meshes (every k-th frame, at most max_frames) -> number written."""
+def export_meshes(bm, fit, out_dir: Path, fmt: str, max_frames: int) -> list[Path]:
+    """Per-frame meshes (every k-th frame, at most max_frames) -> the files written."""
     import trimesh  # trimesh's exporters load only when meshes are written
 
     T = fit.transl.shape[0]
     stride = max(1, math.ceil(T / max(max_frames, 1)))
     frames = list(range(0, T, stride))
     out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
     for i in range(0, len(frames), 32):
         idx = frames[i:i + 32]
         for t, v in zip(idx, bm.motion_vertices(fit, idx)):
@@ -131,12 +165,34 @@ def export_meshes(bm, fit, out_dir: Path, fmt: str, max_frames: int) -> int:
             tmp = out_dir / f".frame_{t:05d}.{os.getpid()}.tmp.{fmt}"
             mesh.export(tmp, file_type=fmt)
             os.replace(tmp, out_dir / f"frame_{t:05d}.{fmt}")
-    return len(frames)
+            written.append(out_dir / f"frame_{t:05d}.{fmt}")
+    return written
+
+
+def refuse_over_inputs(opts: dict, out: Path) -> None:
+    """The outputs may not replace what the run reads: a dataset directory is not an output
+    directory, and an input file named like an output is not overwritten."""
+    inp = Path(opts["input"])
+    if inp.is_dir():
+        refuse_output_over_input(out, [inp], "out")
+    for path in (inp, opts["mlp"], opts["body.model_path"]):
+        if path and OUTPUT_NAMES.fullmatch(Path(path).name):
+            refuse_output_over_input(out / Path(path).name, [path], "out")
 
 
 def run(argv: list[str]) -> dict:
     opts = parse_args(argv)
     joints, fps, desc = load_input(opts)
+    joints = joints_in_metres(joints, opts["unit"], desc)
+    out = Path(opts["out"])
+    refuse_over_inputs(opts, out)
+    with OutputLock(out, "fit"):                     # one live run per output directory
+        return fit_and_write(opts, out, joints, fps, desc)
+
+
+def fit_and_write(opts: dict, out: Path, joints: np.ndarray, fps: float, desc: str) -> dict:  # long: the steps in order
+    """The fit of every sample; params, report and meshes written to `out`, replacing the set a
+    previous fit wrote there."""
     if opts["fps"] is not None:
         fps = opts["fps"]
     if opts["mesh"] not in ("auto", "true", "false"):
@@ -166,8 +222,6 @@ def run(argv: list[str]) -> dict:
     contact = None
     if cfg.w_foot_vel and cfg.foot_vel_mask == "contact":
         contact = load_contact(opts, joints.shape[0], joints.shape[1])
-    out = Path(opts["out"])
-    out.mkdir(parents=True, exist_ok=True)
     S = joints.shape[0]
     do_mesh = opts["mesh"] == "true" or (opts["mesh"] == "auto" and bm.is_procedural)
     report = {"input": desc, "fps": fps, "body_model": str(bm.path), "procedural_body": bm.is_procedural,
@@ -175,32 +229,47 @@ def run(argv: list[str]) -> dict:
     if cfg.w_foot_vel:
         report["foot_velocity"] = {"weight": cfg.w_foot_vel, "a": cfg.foot_vel_a, "z_thres": cfg.foot_z_thres,
                                    "mask": cfg.foot_vel_mask, "floor_y": cfg.floor_y}
-    for s in range(S):
-        fit = fit_joints(joints[s], bm, mlp, config=cfg, device=opts["device"], fps=fps,
-                         contact=None if contact is None else contact[s])
-        name = "params.npz" if S == 1 else f"params_s{s:02d}.npz"
-        save_amass_npz(out / name, fit, fps)
-        entry = {"sample": s, "frames": int(joints.shape[1]), "params": name,
-                 "mpjpe_mlp_cm": None if fit.mpjpe_mlp is None else round(fit.mpjpe_mlp * 100, 4),
-                 "mpjpe_init_cm": round(fit.mpjpe_init * 100, 4), "mpjpe_cm": round(fit.mpjpe * 100, 4),
-                 "max_frame_error_cm": round(float(fit.per_frame_error.max()) * 100, 4),
-                 "steps": fit.steps, "seconds": round(fit.seconds, 3),
-                 "foot_skating": {"input": round(foot_skating_ratio(joints[s], fps), 4),
-                                  "fit": round(foot_skating_ratio(fit.joints, fps), 4)}}
-        report["init"] = fit.init
-        if do_mesh:
-            mdir = out / ("mesh" if S == 1 else f"mesh_s{s:02d}")
-            entry["mesh_dir"] = mdir.name
-            entry["mesh_frames"] = export_meshes(bm, fit, mdir, opts["mesh_format"], opts["mesh_max_frames"])
-        report["samples"].append(entry)
-        mlp_txt = "" if fit.mpjpe_mlp is None else f"MLP alone {entry['mpjpe_mlp_cm']:.2f} cm, "
-        print(f"sample {s}: {entry['frames']} frames, MPJPE {mlp_txt}init ({fit.init}) {entry['mpjpe_init_cm']:.2f} cm -> "
-              f"refined {entry['mpjpe_cm']:.3f} cm ({fit.steps} steps, {fit.seconds:.2f} s) -> {out / name}",
-              flush=True)
-    tmp = out / f".report.{os.getpid()}.tmp"
-    tmp.write_text(json.dumps(report, indent=2))
-    os.replace(tmp, out / "report.json")
+    stage, meshes = StagedOutputs(out), []
+    try:
+        for s in range(S):
+            meshes += _fit_sample(opts, stage, report, s, joints, fps, bm, mlp, cfg, contact, do_mesh)
+        stage.tmp("report.json").write_text(json.dumps(report, indent=2))
+        written = stage.commit()
+    except BaseException:
+        stage.abort()
+        raise
+    record_outputs(out, "fit", written + meshes, keep=[opts["input"]])   # the previous fit's extra files go
     return report
+
+
+def _fit_sample(opts: dict, stage: StagedOutputs, report: dict, s: int, joints: np.ndarray, fps: float, bm, mlp,
+                cfg: RefineConfig, contact, do_mesh: bool) -> list[Path]:
+    """Sample `s` fitted, its params staged and its entry added to `report`; the mesh files written."""
+    out, S = stage.out, joints.shape[0]
+    fit = fit_joints(joints[s], bm, mlp, config=cfg, device=opts["device"], fps=fps,
+                     contact=None if contact is None else contact[s])
+    name = "params.npz" if S == 1 else f"params_s{s:02d}.npz"
+    stage.add(save_amass_npz(stage.tmp(name), fit, fps), name)
+    entry = {"sample": s, "frames": int(joints.shape[1]), "params": name,
+             "mpjpe_mlp_cm": None if fit.mpjpe_mlp is None else round(fit.mpjpe_mlp * 100, 4),
+             "mpjpe_init_cm": round(fit.mpjpe_init * 100, 4), "mpjpe_cm": round(fit.mpjpe * 100, 4),
+             "max_frame_error_cm": round(float(fit.per_frame_error.max()) * 100, 4),
+             "steps": fit.steps, "seconds": round(fit.seconds, 3),
+             "foot_skating": {"input": round(foot_skating_ratio(joints[s], fps), 4),
+                              "fit": round(foot_skating_ratio(fit.joints, fps), 4)}}
+    report["init"] = fit.init
+    meshes = []
+    if do_mesh:
+        mdir = out / ("mesh" if S == 1 else f"mesh_s{s:02d}")
+        entry["mesh_dir"] = mdir.name
+        meshes = export_meshes(bm, fit, mdir, opts["mesh_format"], opts["mesh_max_frames"])
+        entry["mesh_frames"] = len(meshes)
+    report["samples"].append(entry)
+    mlp_txt = "" if fit.mpjpe_mlp is None else f"MLP alone {entry['mpjpe_mlp_cm']:.2f} cm, "
+    print(f"sample {s}: {entry['frames']} frames, MPJPE {mlp_txt}init ({fit.init}) {entry['mpjpe_init_cm']:.2f} cm -> "
+          f"refined {entry['mpjpe_cm']:.3f} cm ({fit.steps} steps, {fit.seconds:.2f} s) -> {out / name}",
+          flush=True)
+    return meshes
 
 
 main = tool_main(run)

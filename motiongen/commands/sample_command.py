@@ -4,12 +4,16 @@ through configs/sample.yaml; docs/sampling.md.
 
 Outputs (all written to temporary names in `out` and renamed at the very end, so a failed
 run leaves nothing half-written): motion.npz, motion.mp4 (or .gif), trajectories.png,
-summary.json, and on request body_<s>.npz (SMPL-X, AMASS layout) and motion_<s>.bvh.
+summary.json, and on request body_<s>.npz (SMPL-X, AMASS layout) and motion_<s>.bvh. The
+directory is locked while the run uses it, and a second run there replaces the first one's
+whole set (docs/config.md, "Outputs and locks").
 """
 
 from __future__ import annotations
 
 import json
+import re
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,15 +31,19 @@ from motiongen.export.trajectory_plot import plot_trajectories
 from motiongen.export.video import render_video, video_suffix
 from motiongen.loading.build import LoadedModel
 from motiongen.loading.keys import checkpoint_path, load_checkpoint_model
+from motiongen.output_lock import OutputLock, claim_run_dir, refuse_output_over_input
 from motiongen.routing import WalkableMap, walkable_map
 from motiongen.sampling.autoregressive import generate
 from motiongen.sampling.goal_input import load_goals_file, parse_goals
 from motiongen.sampling.goals import Goal, Route, check_actions, check_point, plan_route
-from motiongen.sampling.outputs import body_figures, motion_arrays, summary_lines
+from motiongen.sampling.outputs import body_figures, failure_lines, motion_arrays, summary_lines
 from motiongen.sampling.sample_config import SampleConfig
 from motiongen.sampling.scene_setup import SceneInfo, default_route_goals, default_start, resolve_scene
 from motiongen.sampling.settings import Motion, SamplerSettings
-from motiongen.staging import StagedOutputs
+from motiongen.staging import StagedOutputs, record_outputs
+
+# The files `write_outputs` may write.
+OUTPUT_NAMES = re.compile(r"motion\.(npz|mp4|gif|bvh)|summary\.json|trajectories\.png|body\.npz|motion_\d+\.bvh|body_\d+\.npz")
 
 
 @dataclass
@@ -55,10 +63,23 @@ def run(cfg: SampleConfig, default_out: Path) -> dict:
     """The whole `sample` run. Returns the summary dict."""
     t0 = time.perf_counter()
     ckpt = checkpoint_path(cfg)
-    out = Path(cfg.out) if cfg.out else Path(default_out)
     goals, file_start = given_goals(cfg)             # cheap checks first: the goals before the model
+    # One live run per directory; without out= each run gets a directory of its own.
+    with OutputLock(cfg.out, "sample") if cfg.out else claim_run_dir(default_out, "sample") as lock:
+        refuse_over_inputs(cfg, lock.dir, ckpt)
+        return _generate_and_write(cfg, lock.dir, ckpt, goals, file_start, t0)
+
+
+def refuse_over_inputs(cfg: SampleConfig, out: Path, ckpt: Path) -> None:
+    """No output file may replace a file the run reads (checkpoint, goals, scene, body model)."""
+    for inp in (ckpt, cfg.goals_file, cfg.body_model, cfg.scene):
+        if inp and OUTPUT_NAMES.fullmatch(Path(inp).name):
+            refuse_output_over_input(out / Path(inp).name, [inp], "out")
+
+
+def _generate_and_write(cfg: SampleConfig, out: Path, ckpt: Path, goals: list[Goal], file_start, t0: float) -> dict:
     loaded = load_checkpoint_model(cfg)
-    scene = resolve_scene(cfg.scene, loaded.config, cfg.voxel_size, cfg.scene_up, cfg.objects)
+    scene = resolve_scene(cfg.scene, loaded.config, cfg.voxel_size, cfg.scene_up, cfg.objects, cfg.scene_unit)
     fmap = walkable_map(scene.grid, cfg.body_radius, tuple(cfg.body_height)) if scene.grid is not None else None
     route = plan(cfg, scene, fmap, loaded.action_names, goals, file_start)
     print(f"sampling: {ckpt} (step {loaded.step}, {loaded.precision} layers) in {scene.label}, {len(route.goals)} "
@@ -140,10 +161,12 @@ def write_outputs(cfg: SampleConfig, out: Path, res: Sampled, t0: float) -> tupl
         tmp = stage.tmp("summary.json")
         tmp.write_text(json.dumps(summary, indent=2))
         stage.add(tmp, "summary.json")
-        return summary, lines, stage.commit()
+        written = stage.commit()
     except BaseException:
         stage.abort()
         raise
+    record_outputs(out, "sample", written, keep=[res.ckpt, cfg.goals_file])   # the previous run's extra files go
+    return summary, lines, written
 
 
 def write_video(stage: StagedOutputs, cfg: SampleConfig, res: Sampled, goals_xz: np.ndarray) -> None:
@@ -182,7 +205,7 @@ def summary_dict(res: Sampled, sampler: SamplerSettings, figures: dict, t0: floa
     return {"frames": int(motion.joints.shape[1]), "fps": motion.fps, "duration_s": motion.duration,
             "body": figures,
             "num_samples": motion.num_samples, "episodes": int(len(motion.episode_starts)),
-            "completed": motion.completed,
+            "completed": motion.completed, "goals_failed": motion.failed_goals(),
             "arrival_error_m": np.where(np.isfinite(motion.arrival_error), motion.arrival_error, -1).tolist(),
             "arrival_error_body_m": np.where(np.isfinite(motion.arrival_error_body),
                                              motion.arrival_error_body, -1).tolist(),
@@ -191,8 +214,22 @@ def summary_dict(res: Sampled, sampler: SamplerSettings, figures: dict, t0: floa
             "precision": res.loaded.precision}
 
 
+# The exit status of a run that wrote its outputs but did not reach every goal (2: bad input).
+INCOMPLETE = 3
+
+
+def exit_status(summary: dict) -> int:
+    """0 when every sample reached every goal; else INCOMPLETE, each goal not reached named on
+    stderr (summary.json's `goals_failed`)."""
+    for line in failure_lines(summary["goals_failed"]):
+        print(line, file=sys.stderr, flush=True)
+    return 0 if summary["completed"] else INCOMPLETE
+
+
 def _app(cfg: DictConfig, run_dir: Path) -> None:
-    run(OmegaConf.to_object(cfg), run_dir)
+    status = exit_status(run(OmegaConf.to_object(cfg), run_dir))
+    if status:
+        sys.exit(status)
 
 
 main = hydra_command("sample", _app)

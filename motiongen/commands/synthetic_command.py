@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 
+from motiongen.checks import require_output_path
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.data.format import MotionDataset
 from motiongen.synthetic import generate
@@ -16,6 +17,7 @@ USAGE = "motiongen synthetic out=DIR [size=default|small] [seed=0] [overwrite=tr
 def run(argv: list[str]) -> None:
     opts = parse_key_values(argv, SPEC, required=("out",), usage=USAGE,
                             doc="Generate the embedded synthetic human-scene dataset into out=DIR.")
+    require_output_path("out", opts["out"], directory=True)
     t0 = time.perf_counter()
     root = generate(opts["out"], size=opts["size"], seed=opts["seed"], overwrite=opts["overwrite"],
                     workers=opts["workers"])

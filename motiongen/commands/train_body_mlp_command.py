@@ -15,10 +15,12 @@ from omegaconf import DictConfig, OmegaConf
 
 from motiongen.body.train_mlp import train_and_save
 from motiongen.commands.hydra_app import hydra_command
+from motiongen.output_lock import OutputLock
 
 
 def run(cfg: DictConfig, run_dir: Path) -> None:
-    train_and_save(OmegaConf.to_object(cfg))
+    with OutputLock(cfg.out, "train-body-mlp"):         # one live run per output directory
+        train_and_save(OmegaConf.to_object(cfg))
 
 
 main = hydra_command("train_body_mlp", run)

@@ -16,6 +16,7 @@ from motiongen.data.columns import RawColumn
 from motiongen.data.schema import DEFAULT_SPLITS, FORMAT_NAME, FORMAT_VERSION, SMPLX_FIELDS
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.errors import DataError
+from motiongen.output_lock import OutputLock
 from motiongen.skeleton import JointSet
 from motiongen.staging import replace_dir
 
@@ -43,11 +44,17 @@ class DatasetWriter:
             # overwrite deletes `root`: never do that to something that is not ours
             raise DataError(self.root, None, "refusing to overwrite: not a dataset directory (no meta.json) "
                                              "and not empty")
+        if self.root.exists() and OutputLock(self.root, "dataset").holder() is not None:
+            raise OutputLock(self.root, "dataset").busy_error()   # annotate-contact is writing labels into it
         self.tmp = self.root.with_name(self.root.name + f".partial-{os.getpid()}")
         if self.tmp.exists():
             shutil.rmtree(self.tmp)
-        (self.tmp / "scenes").mkdir(parents=True)
-        (self.tmp / "objects").mkdir()
+        try:
+            (self.tmp / "scenes").mkdir(parents=True)
+            (self.tmp / "objects").mkdir()
+        except OSError as e:                              # /proc/x, a read-only disk, a file as parent
+            shutil.rmtree(self.tmp, ignore_errors=True)
+            raise DataError(self.root, None, f"cannot create the dataset here ({e.strerror})") from None
         self.joint_set, self.actions, self.fps = joint_set, list(actions), float(fps)
         self.K, self.has_smplx, self.overwrite = int(num_object_slots), bool(has_smplx), overwrite
         J, A, K = joint_set.num_joints, len(self.actions), self.K

@@ -5,15 +5,18 @@ settings and the run's own keys, as one structured config registered with Hydra
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from motiongen.checks import require_range
 from motiongen.cli import typed_config
 from motiongen.errors import ConfigError
 from motiongen.eval.pairs import SETTINGS, ProtocolConfig
 from motiongen.importers.sources import DataConfig
 from motiongen.loading.keys import CheckpointKeys
+from motiongen.sampling.sample_config import MAX_SAMPLES, check_sampler_settings
 from motiongen.sampling.settings import SamplerSettings
 
 
@@ -58,9 +61,43 @@ class EvaluateConfig(SamplerSettings, ProtocolConfig, EvaluateScope):
     progress: bool = True           # tqdm progress bar
 
     def __post_init__(self):
+        """Every key's range and the mocap files, checked before the checkpoint is loaded: a
+        typo found after the evaluation would throw minutes of work away."""
         super().__post_init__()
-        if self.k < 1 or self.pairs < 1:
-            raise ConfigError(f"k and pairs must be >= 1, got k={self.k}, pairs={self.pairs}")
+        check_sampler_settings(self)
+        check_protocol_keys(self)
+        require_range("threads", self.threads, 0, integer=True)
+        mocap_paths(self.mocap)
+
+
+def check_protocol_keys(p: ProtocolConfig) -> None:
+    """The protocol's numbers (ProtocolConfig's fields)."""
+    r = require_range
+    r("k", p.k, 1, MAX_SAMPLES, integer=True)
+    r("pairs", p.pairs, 1, 10000, integer=True)
+    r("interaction_pairs", p.interaction_pairs, 0, 10000, integer=True)
+    r("action_seconds", p.action_seconds, 0, 3600, allow_none=True)
+    r("min_distance", p.min_distance, 0, 1000)
+    r("body_radius", p.body_radius, 0, 2)
+    r("subgoal_spacing", p.subgoal_spacing, 0.05, 100)
+    r("max_episodes", p.max_episodes, 1, 100000, integer=True)
+    r("seed", p.seed, 0, integer=True)
+    r("pskl_frames", p.pskl_frames, 2, 100000, integer=True)
+    r("contact_thresh", p.contact_thresh, 0, 1, lo_open=True)
+
+
+def mocap_paths(mocap) -> list[Path]:
+    """The `mocap` key's BVH files or folders (one or a list), each present: refused up front,
+    not when the report is written."""
+    if mocap is None:
+        return []
+    paths = [Path(str(m)) for m in ([mocap] if isinstance(mocap, str) else list(mocap))]
+    for p in paths:
+        if not p.exists():
+            raise ConfigError(f"mocap: {p} does not exist (BVH files or folders of them)")
+        if p.is_dir() and not any(p.glob("*.bvh")):
+            raise ConfigError(f"mocap: folder {p} holds no .bvh files")
+    return paths
 
 
 def loop_overrides(loop) -> dict:

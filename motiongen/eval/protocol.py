@@ -70,7 +70,7 @@ def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler
         motion = generate(loaded, ctx.grid, route=pair.route, walkable=ctx.fmap, objects=objs,
                           sampler=sampler, num_samples=cfg.k, generator=gen, body_model=body_model,
                           loop=LoopConfig(max_episodes=cfg.max_episodes, out_fps=ctx.ds.fps, source_fps=ctx.ds.fps,
-                                          **cfg.loop))
+                                          stall_s=None, **cfg.loop))   # the protocol's own budget: max_episodes
     wall = time.perf_counter() - t0
     names = list(motion.joint_names)
     A = len(motion.action_names)

@@ -27,11 +27,12 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, Slerp
 
 from motiongen.body.model import BodyModel, load_body_model
+from motiongen.checks import require_fps
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.bvh.retarget import resample_times
 from motiongen.bvh.detect import check_plausible
 from motiongen.data.format import SMPLX_FIELDS
-from motiongen.importers.bvh import load_clips, write_clips
+from motiongen.importers.bvh import load_clips, refuse_over_sources, write_clips
 from motiongen.errors import ConfigError, DataError
 from motiongen.geometry import up_rotation
 from motiongen.rates import DATA_FPS
@@ -227,9 +228,8 @@ def run(args: dict) -> Path:
     inputs = args["inputs"]
     if not inputs:
         raise ConfigError("inputs=[]: give at least one AMASS .npz file")
-    fps = args["fps"]
-    if not fps > 0:
-        raise ConfigError(f"fps must be positive, got {fps}")
+    refuse_over_sources(args)
+    fps = require_fps("fps", args["fps"])        # the output rate: 1e9 asked for billions of frames
     up = parse_up(args["up"]) if args.get("up") else None
     bm = _body_model(args.get("body_model"))
     motions = load_clips(inputs, lambda path: import_amass(path, bm, fps, up))

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from motiongen.checks import require_fps
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.bvh.detect import UNITS
 from motiongen.bvh.retarget import import_bvh, load_mapping
@@ -29,6 +30,7 @@ from motiongen.bvh.detect import parse_up
 from motiongen.data.dataset_writer import DatasetWriter
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.errors import ConfigError, MotiongenError
+from motiongen.output_lock import refuse_output_over_input
 from motiongen.rates import DATA_FPS
 from motiongen.skeleton import BODY, LEFT_FOOT_JOINTS, RIGHT_FOOT_JOINTS
 
@@ -74,10 +76,9 @@ def run(args: dict[str, str]) -> Path:
     inputs = args["inputs"]
     if not inputs:
         raise ConfigError("inputs=[]: give at least one BVH file")
+    refuse_over_sources(args)
     mapping = load_mapping(args["mapping"]) if args.get("mapping") else None
-    fps = args["fps"]
-    if not fps > 0:
-        raise ConfigError(f"fps must be positive, got {fps}")
+    fps = require_fps("fps", args["fps"])        # the output rate: 1e9 asked for billions of frames
     unit = args.get("unit") or None
     if unit is not None and unit not in UNITS:
         raise ConfigError(f"unit={unit!r}: expected one of {list(UNITS)}")
@@ -93,6 +94,13 @@ def run(args: dict[str, str]) -> Path:
              "up_axis": m.up_axis, "up_from": m.up_from, "height_m": round(m.height, 4), "source_fps": m.source_fps}
             for (name, m), path in zip(motions, inputs)]
     return write_clips(args, motions, fps, source="bvh", extra={"bvh_import": info})
+
+
+def refuse_over_sources(args: dict) -> None:
+    """The dataset written at out= (replacing what is there with overwrite=true) may not be,
+    hold or lie inside any file the import reads."""
+    refuse_output_over_input(args["out"], [*args["inputs"], args.get("mapping"), args.get("scene"),
+                                           args.get("body_model")], "out")
 
 
 def load_clips(inputs: list, load) -> list[tuple[str, object]]:

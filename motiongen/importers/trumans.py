@@ -34,6 +34,7 @@ from motiongen.importers.trumans_release import (_NUM_BETAS, CONTACT_RADIUS, NUM
                                             TRUMANS_FPS, TRUMANS_GRID, GridSpec, TrumansRelease, TrumansSequence,
                                             interpret_object_flags, open_release)
 from motiongen.errors import DataError
+from motiongen.output_lock import refuse_output_over_input
 from motiongen.skeleton import get_joint_set
 
 
@@ -104,6 +105,7 @@ def convert_trumans(release_dir: str | Path, out_dir: str | Path, joints: str = 
     """
     js = get_joint_set(joints)
     out = Path(out_dir)
+    refuse_output_over_input(out, [release_dir], "out")   # overwrite= replaces a dataset, never the release
     if out.exists() and not overwrite:
         raise DataError(out, None, "output directory already exists (pass overwrite=true)")
     rel = open_release(release_dir, grid=grid, allow_pickle=allow_pickle)

@@ -148,7 +148,9 @@ def interpret_object_flags(flag: np.ndarray, mat: np.ndarray, path: Path, frame0
 # Opening and validation
 
 
-def _load(root: Path, name: str, allow_pickle: bool = False) -> np.ndarray:
+def _load(root: Path, name: str, allow_pickle: bool | None = None) -> np.ndarray:
+    """`root/name.npy`. allow_pickle: the user's allow_pickle= for an array the release may store
+    pickled (seg_name); None for one that must be plain numbers whatever allow_pickle= says."""
     path = root / f"{name}.npy"
     try:
         return load_npy(path, name)
@@ -156,6 +158,9 @@ def _load(root: Path, name: str, allow_pickle: bool = False) -> np.ndarray:
         # np.load says "pickled" without a memory map and "Python objects" with one
         if "pickled" not in e.problem and "Python objects" not in e.problem:
             raise
+        if allow_pickle is None:                         # the key would not help: say what is wrong
+            raise DataError(path, name, "stored as a pickled object array; expected a plain numeric array "
+                                        "(allow_pickle= applies to seg_name and norm.npy only)") from None
         if not allow_pickle:
             raise DataError(path, name, "stored as a pickled object array; pass allow_pickle=true "
                                         "only if you trust the file") from None
@@ -243,7 +248,7 @@ def _frame_arrays(root: Path, allow_pickle: bool) -> dict[str, np.ndarray]:
         raise DataError(root / "human_joints.npy", "human_joints", "release has no frames")
     for name, (row, kinds) in _REQUIRED.items():
         if name != "human_joints":
-            arrays[name] = _load(root, name, allow_pickle=allow_pickle and name == "seg_name")
+            arrays[name] = _load(root, name, allow_pickle=allow_pickle if name == "seg_name" else None)
             _check(root, name, arrays[name], N, row, kinds + ("O" if name == "seg_name" else ""))
     for name in _INDEX_FILES:
         a = _load(root, name)

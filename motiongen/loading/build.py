@@ -124,7 +124,7 @@ class LoadedModel:
 
     precision = "fp32"                              # of the transformer layers (load_model)
 
-    def __init__(self, state: dict, device, use_ema: bool = True):
+    def __init__(self, state: dict, device, use_ema: bool = True, path=None):
         cfg = _with_legacy_defaults(OmegaConf.create(state["config"]))
         self.config = cfg
         self.step = int(state["step"])
@@ -137,10 +137,8 @@ class LoadedModel:
         self.predict_goal = goal_predicted(cfg)
         self.fps = float(state.get("fps") or DATA_FPS)      # the training data's frame rate
         model, self.diffusion, _ = build_from_config(cfg, self.joint_set, self.action_names)
-        try:
-            model.load_state_dict(state["ema" if use_ema else "model"])
-        except RuntimeError as e:
-            raise ConfigError(f"checkpoint weights do not match its own config: {str(e).splitlines()[0]}") from None
+        part = "ema" if use_ema else "model"
+        load_weights(model, state[part], path or "checkpoint", part, "its own config")
         self.model = model.to(device).eval().requires_grad_(False)
         self.device = torch.device(device)
 
@@ -149,6 +147,24 @@ class LoadedModel:
         """The data rate the model was trained at: frames per second of its windows, the
         training data's rate over the window stride."""
         return self.fps / self.window.stride
+
+
+def load_weights(module: torch.nn.Module, weights: dict, path, part: str, model_from: str) -> None:
+    """`weights` (a state dict, the checkpoint's `part`) into `module`, refused in one line naming
+    the file when a tensor is not finite (a diverged run) or the weights belong to another
+    architecture than `model_from` builds (a width, layer count or joint set changed)."""
+    bad = [k for k, v in weights.items() if torch.is_tensor(v) and v.is_floating_point() and not torch.isfinite(v).all()]
+    if bad:
+        more = f" and {len(bad) - 1} more tensors" if len(bad) > 1 else ""
+        raise DataError(path, part, f"non-finite weights (NaN or inf) in {bad[0]}{more}: the run that wrote it diverged")
+    own = module.state_dict()
+    missing, extra = sorted(set(own) - set(weights)), sorted(set(weights) - set(own))
+    shapes = [k for k in own if k in weights and tuple(own[k].shape) != tuple(weights[k].shape)]
+    if missing or extra or shapes:
+        what = (f"{shapes[0]} is {tuple(weights[shapes[0]].shape)} there, {tuple(own[shapes[0]].shape)} here"
+                if shapes else f"{len(missing)} tensors missing, {len(extra)} unexpected (e.g. {(missing or extra)[0]})")
+        raise DataError(path, part, f"weights of another architecture than {model_from} builds ({what})")
+    module.load_state_dict(weights)
 
 
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16}
@@ -185,7 +201,7 @@ def load_model(path, device="cpu", use_ema: bool = True, precision: str = "fp32"
     if missing:
         raise MotiongenError(f"{path}: incompatible checkpoint, missing {missing}")
     try:
-        loaded = LoadedModel(state, device, use_ema)
+        loaded = LoadedModel(state, device, use_ema, path)
     except MotiongenError:
         raise
     except Exception as e:  # a config or tensors this version cannot rebuild: the user's file

@@ -1,6 +1,8 @@
 """Atomic checkpoints: write to a temp file, fsync, rename; keep the last K and the best.
 
-A kill at any instant leaves `checkpoints/last.pt` pointing at the newest *complete* file.
+A kill at any instant leaves `checkpoints/last.pt` pointing at the newest *complete* file; the
+temp file a SIGKILL leaves (`.NAME.tmp<pid>`) is removed by the next run there
+(`remove_orphan_temps`), an error or Ctrl-C removes its own at once.
 """
 
 from __future__ import annotations
@@ -13,29 +15,56 @@ from pathlib import Path
 import torch
 
 from motiongen.errors import MotiongenError
+from motiongen.output_lock import _pid_alive
 
 STEP_RE = re.compile(r"step_(\d+)\.pt$")
+TMP_RE = re.compile(r"\..+\.tmp(\d+)$")          # what _atomic_torch_save / _atomic_link write first
+
+
+def _temp_name(path: Path) -> Path:
+    return path.with_name(f".{path.name}.tmp{os.getpid()}")
 
 
 def _atomic_torch_save(obj, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as f:
-        torch.save(obj, f)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    tmp = _temp_name(path)
+    try:
+        with open(tmp, "wb") as f:
+            torch.save(obj, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:                         # an error or Ctrl-C mid-write: no half file left
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def _atomic_link(src: Path, dst: Path) -> None:
     """Make dst a hard link to src (a copy where links are unsupported), atomically."""
-    tmp = dst.with_name(f".{dst.name}.tmp{os.getpid()}")
+    tmp = _temp_name(dst)
     if tmp.exists():
         tmp.unlink()
     try:
-        os.link(src, tmp)
-    except OSError:
-        shutil.copyfile(src, tmp)
-    os.replace(tmp, dst)
+        try:
+            os.link(src, tmp)
+        except OSError:
+            shutil.copyfile(src, tmp)
+        os.replace(tmp, dst)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def remove_orphan_temps(ckpt_dir: Path) -> list[Path]:
+    """Remove the temp files in `ckpt_dir` whose writer is dead (a run killed mid-checkpoint
+    leaves `.step_*.pt.tmp<pid>` for good otherwise); a live process's are left alone. Returns
+    the files removed."""
+    removed = []
+    for p in Path(ckpt_dir).glob(".*.tmp*"):
+        m = TMP_RE.fullmatch(p.name)
+        if m and int(m.group(1)) > 0 and not _pid_alive(int(m.group(1))):
+            p.unlink(missing_ok=True)
+            removed.append(p)
+    return removed
 
 
 def save_checkpoint(state: dict, ckpt_dir: Path, step: int, keep_last: int, best: bool = False) -> Path:

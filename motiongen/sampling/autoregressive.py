@@ -36,7 +36,9 @@ from the reference loop"):
 * Interactions: a goal with an action holds the pelvis target there with that action label
   for its duration.
 * Stops at the final goal within tolerance, or at `max_episodes` with a warning saying how
-  far each sample got.
+  far each sample got; a sample that makes no progress for `loop.stall_s` seconds of motion
+  stops early (`progress.stall_rule`), idling where it stands, and the loop ends once every
+  sample is done or stopped. `Motion.goal_outcome` says what became of each goal.
 * Output: the projected frames are resampled to 30 fps (cubic spline) and solved once more on
   the body over the whole motion, with every foot joint the model predicts planted held in
   place (foot locking, `loop.foot_lock`). The network's own joints stay available
@@ -61,7 +63,8 @@ from motiongen.sampling.conditioning import condition_episode
 from motiongen.sampling.denoising import denoise
 from motiongen.sampling.episode import EpisodeState, LoopSpec, Window, drop_warmup, loop_spec, record_episode
 from motiongen.sampling.goals import Route
-from motiongen.sampling.progress import Progress, Targets, advance, goal_plan, next_targets, shortfall
+from motiongen.sampling.progress import (Progress, Targets, advance, goal_outcomes, goal_plan, next_targets,
+                                         output_arrival_errors, shortfall)
 from motiongen.sampling.projection import project_window
 from motiongen.sampling.scene_query import SceneQuery
 from motiongen.sampling.settings import LoopConfig, Motion, SamplerSettings
@@ -106,9 +109,9 @@ def generate(loaded, scene=None, *, route: Route, walkable: WalkableMap | None =
         drop_warmup(state, spec.transition)
         first_kept = len(state.episodes) - 1
 
-    # Goal episodes, until every sample has acted at its last goal.
+    # Goal episodes, until every sample has acted at its last goal or stalled.
     n_ep = 0
-    while not progress.done.all() and n_ep < loop.max_episodes:
+    while not progress.finished.all() and n_ep < loop.max_episodes:
         targets = next_targets(progress, plan, state.pelvis_now())
         before = state.n_frames
         run_episode(spec, loaded, query, body_model, state, targets)
@@ -116,9 +119,12 @@ def generate(loaded, scene=None, *, route: Route, walkable: WalkableMap | None =
         for line in advance(progress, plan, targets, state.frames[-1], before, n_ep):
             if log is not None:
                 log(line)
-    if not progress.done.all():
+    if not progress.finished.all():
         warnings.warn(f"stopped after max_episodes={loop.max_episodes} episodes: "
                       + shortfall(progress, plan, state.pelvis_now()), stacklevel=2)
+    if progress.stalled.any():
+        warnings.warn(f"stopped early, no progress for loop.stall_s={loop.stall_s:g} s: "
+                      + shortfall(progress, plan, state.pelvis_now(), progress.stalled), stacklevel=2)
 
     out = clean_up(state, loaded.layout, spec.model_fps, plan, loop, objects, scene)
     return as_motion(loaded, route, loop.out_fps, spec.model_fps, state.episodes[first_kept:], state, progress, out,
@@ -144,14 +150,18 @@ def as_motion(loaded, route: Route, out_fps: float, model_fps: float, kept: list
     ratio = out_fps / model_fps
     to_out = lambda m: np.where(m >= 0, np.round(m * ratio).astype(np.int64), -1)            # noqa: E731
     names = loaded.joint_set.names
+    # The goal errors a user reads are the output's, measured after smoothing and the final solve.
+    arrival = to_out(progress.arrival_frame)
+    goal_xz = np.array([g.xz for g in route.goals], np.float64).reshape(-1, 2)
+    pelvis_err, hips_err = output_arrival_errors(out.joints, arrival, goal_xz, out_fps)
     return Motion(
         joints=out.joints.astype(np.float32), fps=float(out_fps), joint_names=list(names),
         model_joints=out.model_joints.astype(np.float32), model_fps=float(model_fps),
         actions=out.actions.astype(np.int16), action_names=list(loaded.action_names),
         episode_starts=np.array([to_out(np.int64(e.start)) for e in kept], np.int64),
-        episode_kinds=[e.kind for e in kept], route=route, arrival_frame=to_out(progress.arrival_frame),
-        arrival_error=progress.arrival_error, arrival_error_body=progress.arrival_body,
+        episode_kinds=[e.kind for e in kept], route=route, arrival_frame=arrival,
+        arrival_error=pelvis_err, arrival_error_body=hips_err,
         finish_frame=to_out(progress.finish_frame), completed=bool(progress.done.all()), wall_time=wall_time,
         joints_raw=out.joints_raw.astype(np.float32), planted=out.planted,
         contact_joints=[names[j] for j in loaded.layout.contact_joints], bodies=out.bodies,
-        episodes=state.episodes)
+        episodes=state.episodes, goal_outcome=goal_outcomes(progress, len(route.goals)))

@@ -10,17 +10,22 @@ from pathlib import Path
 
 import numpy as np
 
+from motiongen.checks import require_range
 from motiongen.errors import ConfigError, DataError
 from motiongen.sampling.goals import WALK_NAMES, Goal
 
+# Metres from the origin a point may lie: a scene is at most a few hundred metres across, so
+# a goal at 1e300 is a typo (it overflowed the grid lookups).
+MAX_COORD = 1e4
 
-def _num_pair(v, what: str, path=None) -> np.ndarray:
+
+def parse_point(v, what: str, path=None) -> np.ndarray:
     try:
         a = np.asarray([float(x) for x in v], np.float64)
     except (TypeError, ValueError):
         a = None
-    if a is None or a.shape != (2,) or not np.all(np.isfinite(a)):
-        msg = f"expected a point [x, z] of two numbers, got {v!r}"
+    if a is None or a.shape != (2,) or not np.all(np.abs(a) <= MAX_COORD):     # nan fails too
+        msg = f"expected a point [x, z] of two numbers within ±{MAX_COORD:g} m, got {v!r}"
         if path is not None:
             raise DataError(path, what, msg)
         raise ConfigError(f"{what}: {msg}")
@@ -36,7 +41,7 @@ def parse_goals(points, actions=None, durations=None, default_duration: float = 
     points = list(points)
     if points and not isinstance(points[0], (list, tuple)) and len(points) == 2:
         points = [points]                                                                    # goals=[x,z]
-    goals = [Goal(_num_pair(p, f"goals[{i}]")) for i, p in enumerate(points)]
+    goals = [Goal(parse_point(p, f"goals[{i}]")) for i, p in enumerate(points)]
     if actions is not None:
         actions = [actions] if isinstance(actions, str) else list(actions)
         if len(actions) != len(goals):
@@ -47,8 +52,8 @@ def parse_goals(points, actions=None, durations=None, default_duration: float = 
         durations = [durations] if isinstance(durations, (int, float)) else list(durations)
         if len(durations) != len(goals):
             raise ConfigError(f"durations: expected one per goal ({len(goals)}), got {len(durations)}")
-        for g, d in zip(goals, durations):
-            g.duration = float(d)
+        for i, (g, d) in enumerate(zip(goals, durations)):
+            g.duration = float(require_range(f"durations[{i}]", d, 0, 3600))
     for g in goals:
         if g.action is not None and durations is None:
             g.duration = default_duration
@@ -59,15 +64,15 @@ def _goal_from_obj(o, i: int, path: Path, default_duration: float) -> Goal:
     where = f"goals[{i}]"
     if isinstance(o, (list, tuple)):
         if len(o) == 2:
-            return Goal(_num_pair(o, where, path))
+            return Goal(parse_point(o, where, path))
         if len(o) in (3, 4):
             d = default_duration if len(o) == 3 else o[3]
-            return Goal(_num_pair(o[:2], where, path), None if o[2] is None else str(o[2]), _float(d, where, path))
+            return Goal(parse_point(o[:2], where, path), None if o[2] is None else str(o[2]), _float(d, where, path))
     if isinstance(o, dict):
         if "xz" in o:
-            xz = _num_pair(o["xz"], where, path)
+            xz = parse_point(o["xz"], where, path)
         elif "x" in o and "z" in o:
-            xz = _num_pair([o["x"], o["z"]], where, path)
+            xz = parse_point([o["x"], o["z"]], where, path)
         else:
             raise DataError(path, where, "a goal object needs 'xz': [x, z] or 'x' and 'z'")
         action = o.get("action")
@@ -112,7 +117,7 @@ def load_goals_file(path, default_duration: float = 3.0) -> tuple[list[Goal], np
             if "goals" not in obj:
                 raise DataError(path, "goals", "missing; expected {\"goals\": [...]} or a list of goals")
             if obj.get("start") is not None:
-                start = _num_pair(obj["start"], "start", path)
+                start = parse_point(obj["start"], "start", path)
             obj = obj["goals"]
         if not isinstance(obj, list):
             raise DataError(path, "goals", "expected a list of goals")
@@ -126,7 +131,7 @@ def load_goals_file(path, default_duration: float = 3.0) -> tuple[list[Goal], np
             r = [c.strip() for c in r]
             if len(r) not in (2, 3, 4):
                 raise DataError(path, f"row {i + 1}", f"expected x, z[, action[, duration]], got {len(r)} columns")
-            xz = _num_pair(r[:2], f"row {i + 1}", path)
+            xz = parse_point(r[:2], f"row {i + 1}", path)
             action = r[2] if len(r) > 2 and r[2] else None
             has_action = action is not None and action.lower() not in WALK_NAMES
             d = _float(r[3], f"row {i + 1}", path) if len(r) == 4 and r[3] else (default_duration if has_action else 0.0)

@@ -1,12 +1,12 @@
 """What `sample.py` writes and prints about a generated motion: the motion.npz payload, the body
-figures (bone lengths, foot slide) and the summary lines."""
+figures (bone lengths, foot slide), the summary lines and the lines naming the goals not reached."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from motiongen import metrics as M
-from motiongen.sampling.settings import Motion, SamplerSettings
+from motiongen.sampling.settings import EPISODE_LIMIT, NOT_ATTEMPTED, STALLED, Motion, SamplerSettings
 from motiongen.skeleton import joint_set_for
 
 
@@ -39,6 +39,8 @@ def motion_arrays(motion: Motion, extra: dict | None = None) -> dict:
         "completed": np.bool_(motion.completed),
         "wall_time": np.float64(motion.wall_time),
     }
+    if motion.goal_outcome is not None:
+        d["goal_outcome"] = np.asarray(motion.goal_outcome, str)                         # (S, G) reached | ...
     if motion.joints_raw is not None:
         d["joints_raw"] = motion.joints_raw.astype(np.float32)                           # (S, T, J, 3) network's own
     if motion.planted is not None:
@@ -93,4 +95,25 @@ def summary_lines(motion: Motion, sampler: SamplerSettings, figures: dict | None
                            for tag in ("", "network_")]))
     lines.append(f"wall time {motion.wall_time:.1f} s, real-time factor {motion.real_time_factor:.2f} "
                  f"({S} x {motion.duration:.1f} s of motion / {motion.wall_time:.1f} s)")
+    return lines
+
+
+# Why a goal was not reached, as the failure lines say it.
+_WHY = {STALLED: "stalled, no progress towards it for loop.stall_s seconds",
+        EPISODE_LIMIT: "stopped by the episode limit, loop.max_episodes"}
+
+
+def failure_lines(failed: list[dict]) -> list[str]:
+    """The lines naming the goals not reached (`Motion.failed_goals()`): one per goal a sample
+    stopped at, one per sample for the goals after it, which it never set out for."""
+    lines, later = [], {}
+    for f in failed:
+        if f["reason"] == NOT_ATTEMPTED:
+            later.setdefault(f["sample"], []).append(f["goal"])
+        else:
+            lines.append(f"goal not reached: sample {f['sample']}, goal {f['goal']}: "
+                         f"{_WHY.get(f['reason'], f['reason'])}; {f['distance_m']:.2f} m from it at the end")
+    for s, goals in later.items():
+        span = f"goal {goals[0]}" if len(goals) == 1 else f"goals {goals[0]}-{goals[-1]}"
+        lines.append(f"goal not reached: sample {s}, {span}: not attempted")
     return lines

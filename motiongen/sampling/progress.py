@@ -4,6 +4,9 @@ Per sample: walk towards goal g through its subgoals (look-ahead: the farthest o
 the model's reach and in line of sight), arrive within `loop.tolerance` of its last subgoal (the
 goal), act there for the goal's duration, go on to goal g + 1; after the last goal, idle there
 until every sample is done. Samples advance independently in one batch.
+
+A sample that makes no progress for `loop.stall_s` seconds of motion stalls (`stall_rule`): it
+idles where it stands, like a finished sample, and its goal counts as failed (`goal_outcomes`).
 """
 
 from __future__ import annotations
@@ -17,8 +20,13 @@ from motiongen.routing import WalkableMap
 from motiongen.sampling.episode import LoopSpec, pelvis_xz
 from motiongen.sampling.goals import Goal, Route, action_index
 from motiongen.sampling.interactions import seat_height
-from motiongen.sampling.settings import LoopConfig
-from motiongen.skeleton import LEFT_HIP, RIGHT_HIP
+from motiongen.sampling.settings import EPISODE_LIMIT, NOT_ATTEMPTED, REACHED, STALLED, LoopConfig
+from motiongen.skeleton import LEFT_HIP, PELVIS, RIGHT_HIP
+
+# How much closer (m) to its current subgoal a sample must come for that to count as progress:
+# above a standing body's pelvis sway between episodes (a few cm), below what one episode of
+# even a slow walk covers (0.4 m/s x 1.4 s). Smaller steps still count once they add up to it.
+STALL_MARGIN = 0.1
 
 
 @dataclass(frozen=True)
@@ -39,6 +47,8 @@ class GoalPlan:
     lookahead: bool
     tolerance: float               # pelvis distance (m) that counts as arriving
     walkable: WalkableMap | None   # look-ahead targets must be in line of sight on it
+    model_fps: float               # frames per second of the kept frames
+    stall_s: float                 # seconds of motion without progress after which a sample stalls (inf: never)
 
     @property
     def final_label(self) -> int:
@@ -59,9 +69,11 @@ def goal_plan(route: Route, names, scene, loop: LoopConfig, spec: LoopSpec, p_go
                        if scene is not None and g.action in loop.seat_actions and p_goal_y > 0
                        else np.nan for g in goals])
     leg_last = np.array([np.flatnonzero(route.subgoal_leg == g).max() for g in range(len(goals))])
+    stall_s = float(loop.stall_s) if loop.stall_s else math.inf                               # null or 0: off
     return GoalPlan(goals, names, route.subgoals, leg_last, np.stack([g.xz for g in goals]),
                     tuple(action_index(names, g.action) for g in goals), act_eps, seat_y, walk,
-                    idle if idle >= 0 else walk, spec.reach, loop.lookahead, loop.tolerance, walkable)
+                    idle if idle >= 0 else walk, spec.reach, loop.lookahead, loop.tolerance, walkable,
+                    spec.model_fps, stall_s)
 
 
 @dataclass
@@ -76,19 +88,29 @@ class Progress:
     arrival_error: np.ndarray      # (S, G) pelvis (x, z) distance to the goal there (m), nan = never
     arrival_body: np.ndarray       # (S, G) same for the hips' midpoint
     finish_frame: np.ndarray       # (S,) int last frame of the episode that finished the sample, -1 = never
+    best: np.ndarray               # (S,) closest distance (m) to subgoal `ptr` since the last progress, inf = none yet
+    moved: np.ndarray              # (S,) int last frame at which the sample made progress, -1 = none yet
+    stalled: np.ndarray            # (S,) bool stopped for want of progress (at goal `leg`)
+    halt_xz: np.ndarray            # (S, 2) where a stalled sample stands, nan = not stalled
 
     @classmethod
     def start(cls, S: int, G: int) -> "Progress":
         return cls(np.zeros(S, np.int64), np.zeros(S, np.int64), np.zeros(S, np.int64), np.zeros(S, bool),
                    np.full((S, G), -1, np.int64), np.full((S, G), np.nan), np.full((S, G), np.nan),
-                   np.full(S, -1, np.int64))
+                   np.full(S, -1, np.int64), np.full(S, np.inf), np.full(S, -1, np.int64), np.zeros(S, bool),
+                   np.full((S, 2), np.nan))
+
+    @property
+    def finished(self) -> np.ndarray:
+        """(S,) bool: done, or stalled; either way the sample only idles from now on."""
+        return self.done | self.stalled
 
 
 @dataclass
 class Targets:
     """What one episode asks of each sample."""
 
-    kind: str                      # warmup | walk | act | idle (majority over samples)
+    kind: str                      # warmup | walk | act | idle (majority over samples; ties: act, walk, idle)
     target: np.ndarray             # (S, 2) world pelvis target x, z
     label: np.ndarray              # (S,) int action index over the new frames
     chosen: np.ndarray | None = None   # (S,) int subgoal targeted by walking samples, -1 others
@@ -111,6 +133,9 @@ def next_targets(p: Progress, plan: GoalPlan, pos: np.ndarray) -> Targets:
         if p.done[s]:
             target[s], label[s] = plan.goal_xz[-1], plan.final_label
             kinds.append("idle")
+        elif p.stalled[s]:
+            target[s], label[s] = p.halt_xz[s], plan.idle_label
+            kinds.append("idle")
         elif p.acting[s] > 0:
             target[s], label[s], height[s] = plan.goal_xz[g], plan.goal_labels[g], plan.seat_y[g]
             kinds.append("act")
@@ -118,7 +143,9 @@ def next_targets(p: Progress, plan: GoalPlan, pos: np.ndarray) -> Targets:
             chosen[s] = j = _farthest_visible(plan, p.ptr[s], g, pos[s])
             target[s], label[s] = plan.subgoals[j], plan.walk_label
             kinds.append("walk")
-    return Targets(max(set(kinds), key=kinds.count), target, label, chosen, height)
+    # The majority; a tie goes to the busier kind (act, walk, idle), never to set order (hash-seeded).
+    kind = max((k for k in ("act", "walk", "idle") if k in kinds), key=kinds.count)
+    return Targets(kind, target, label, chosen, height)
 
 
 def _farthest_visible(plan: GoalPlan, j, g: int, pos: np.ndarray):
@@ -134,14 +161,15 @@ def _farthest_visible(plan: GoalPlan, j, g: int, pos: np.ndarray):
 
 def advance(p: Progress, plan: GoalPlan, t: Targets, new: np.ndarray, before: int, n_ep: int) -> list[str]:
     """Move every sample on after episode n_ep, whose kept frames `new` (S, n, J, 3) start at
-    model frame `before`. Returns the progress lines (one per goal reached)."""
+    model frame `before`. Returns the progress lines (one per goal reached, one per sample that
+    stalled)."""
     G = len(plan.goals)
     pel = pelvis_xz(new)                                                                     # (S, n, 2)
     hips = 0.5 * (new[:, :, LEFT_HIP] + new[:, :, RIGHT_HIP])[..., [0, 2]]                  # (S, n, 2)
-    lines = []
+    lines, active, ptr, acted = [], ~p.finished, p.ptr.copy(), p.acting > 0
     for s in range(len(p.leg)):
         g = min(p.leg[s], G - 1)
-        if p.done[s]:
+        if p.finished[s]:
             continue
         if p.acting[s] > 0:
             p.acting[s] -= 1
@@ -155,6 +183,40 @@ def advance(p: Progress, plan: GoalPlan, t: Targets, new: np.ndarray, before: in
                 p.finish_frame[s] = before + pel.shape[1] - 1
             else:
                 p.leg[s] += 1
+    return lines + _stalls(p, plan, active & ~p.done, ptr, acted, pel[:, -1], before + pel.shape[1] - 1)
+
+
+def stall_rule(best: np.ndarray, moved: np.ndarray, passed: np.ndarray, dist: np.ndarray, now: int,
+               limit: float, margin: float = STALL_MARGIN) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The stall rule, over (S,) arrays of the samples still on their way: a sample progressed
+    when it `passed` a subgoal or acted (its target moved on), or came `margin` closer to its
+    subgoal than its `best` distance since its last progress (`dist` now); one that has not
+    progressed for `limit` frames up to frame `now` (since `moved`) has stalled.
+    Returns the new (best, moved, stalled); best restarts from the distance now at each progress."""
+    progressed = passed | (dist < best - margin)
+    best = np.where(progressed, dist, best)
+    moved = np.where(progressed, now, moved)
+    return best, moved, ~progressed & (now - moved >= limit)
+
+
+def _stalls(p: Progress, plan: GoalPlan, walking: np.ndarray, ptr: np.ndarray, acted: np.ndarray,
+            end: np.ndarray, now: int) -> list[str]:
+    """Apply `stall_rule` to the samples `walking` (not finished before this episode nor by it),
+    whose subgoal pointer was `ptr` and which `acted` over it, now at `end` (S, 2); stop the ones
+    that stalled where they stand. Returns a line per sample stopped."""
+    if not math.isfinite(plan.stall_s):
+        return []
+    dist = np.linalg.norm(end - plan.subgoals[np.minimum(p.ptr, len(plan.subgoals) - 1)], axis=-1)   # (S,)
+    best, moved, stalled = stall_rule(p.best, p.moved, acted | (p.ptr != ptr), dist, now,
+                                      plan.stall_s * plan.model_fps)
+    p.best, p.moved = np.where(walking, best, p.best), np.where(walking, moved, p.moved)
+    lines = []
+    for s in np.flatnonzero(walking & stalled):
+        p.stalled[s], p.halt_xz[s] = True, end[s]
+        g = min(p.leg[s], len(plan.goals) - 1)
+        far = float(np.linalg.norm(end[s] - plan.goal_xz[g]))
+        lines.append(f"sample {s}: stalled at goal {g + 1}/{len(plan.goals)}, {far:.2f} m from it: no progress "
+                     f"for {(now - p.moved[s]) / plan.model_fps:.1f} s")
     return lines
 
 
@@ -181,13 +243,47 @@ def _arrive(p: Progress, plan: GoalPlan, s: int, g: int, pel: np.ndarray, hips: 
     return f"sample {s}: goal {g + 1}/{len(plan.goals)} reached after {n_ep} episodes ({d[f]:.2f} m)"
 
 
-def shortfall(p: Progress, plan: GoalPlan, pos: np.ndarray) -> str:
-    """How far each unfinished sample got, from the pelvis positions (S, 2) now."""
+def output_arrival_errors(joints: np.ndarray, arrival_frame: np.ndarray, goal_xz: np.ndarray, fps: float,
+                          window_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """Arrival errors measured on the output motion, after the clean-up moved it: joints
+    (S, T, J, 3) at `fps`, arrival_frame (S, G) output frame of each arrival (-1: never),
+    goal_xz (G, 2). Per arrival, the pelvis's closest approach to the goal within `window_s`
+    of the arrival frame, and the hips' midpoint's distance at that frame. Returns (pelvis,
+    hips) (S, G) in metres, NaN where never reached."""
+    S, G = arrival_frame.shape
+    pel_err, hip_err = np.full((S, G), np.nan), np.full((S, G), np.nan)
+    pel = joints[:, :, PELVIS][..., [0, 2]]                                                   # (S, T, 2)
+    hips = 0.5 * (joints[:, :, LEFT_HIP] + joints[:, :, RIGHT_HIP])[..., [0, 2]]             # (S, T, 2)
+    w = int(round(window_s * fps))
+    for s, g in zip(*np.nonzero(arrival_frame >= 0)):
+        a = min(int(arrival_frame[s, g]), joints.shape[1] - 1)
+        lo, hi = max(a - w, 0), a + w + 1
+        d = np.linalg.norm(pel[s, lo:hi] - goal_xz[g], axis=-1)                               # (n,)
+        f = int(np.argmin(d))
+        pel_err[s, g], hip_err[s, g] = d[f], np.linalg.norm(hips[s, lo + f] - goal_xz[g])
+    return pel_err, hip_err
+
+
+def shortfall(p: Progress, plan: GoalPlan, pos: np.ndarray, which: np.ndarray | None = None) -> str:
+    """How far each sample in `which` (S,) bool (default: every unfinished one) got, from the
+    pelvis positions (S, 2) now."""
     G, parts = len(plan.goals), []
+    which = ~p.finished if which is None else which
     for s in range(len(p.leg)):
-        if p.done[s]:
+        if not which[s]:
             continue
         g = min(p.leg[s], G - 1)
         dist = float(np.linalg.norm(pos[s] - plan.goal_xz[g]))
         parts.append(f"sample {s} reached {int((p.arrival_frame[s] >= 0).sum())}/{G} goals, {dist:.2f} m from goal {g + 1}")
     return "; ".join(parts)
+
+
+def goal_outcomes(p: Progress, G: int) -> np.ndarray:
+    """(S, G) str: each goal REACHED (arrived and acted there), else why not: the goal a sample
+    stopped at STALLED or cut by the EPISODE_LIMIT (also when its action there was cut), the
+    goals after it NOT_ATTEMPTED."""
+    out = np.where(p.arrival_frame >= 0, REACHED, NOT_ATTEMPTED).astype("<U16")
+    for s in np.flatnonzero(~p.done):
+        g = min(int(p.leg[s]), G - 1)
+        out[s, g] = STALLED if p.stalled[s] else EPISODE_LIMIT
+    return out

@@ -7,8 +7,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from motiongen.checks import require_choice, require_fps, require_range
 from motiongen.errors import ConfigError
 from motiongen.loading.keys import CheckpointKeys
+from motiongen.sampling.goal_input import parse_point
 from motiongen.sampling.settings import LoopConfig, SamplerSettings
 
 
@@ -18,6 +20,7 @@ class SceneRouteKeys(CheckpointKeys):
     # synthetic dataset's scene), dataset:PATH:ID, or None (empty floor).
     scene: str | None = None
     scene_up: str = "y"            # up axis of mesh files: y | z
+    scene_unit: str = "m"          # length unit of mesh files: m | cm | mm (scaled to metres)
     voxel_size: float = 0.02       # metres, for mesh scenes
     objects: bool = True           # dataset scenes: add their movable objects to the occupancy queries
     # Route. Points are [x, z]; `goals=[x,z]` is one goal, `actions=sit` one action.
@@ -53,5 +56,62 @@ class SampleConfig(SamplerSettings, SceneRouteKeys):
 
     def __post_init__(self):
         super().__post_init__()
-        if self.num_samples < 1:
-            raise ConfigError(f"num_samples must be >= 1, got {self.num_samples}")
+        check_sampler_settings(self)
+        check_scene_route_keys(self)
+        require_range("seed", self.seed, 0, integer=True)
+        require_range("num_samples", self.num_samples, 1, MAX_SAMPLES, integer=True)
+        require_fps("video_fps", self.video_fps, allow_none=True)
+        require_choice("video_style", self.video_style, ("body", "skeleton"))
+        check_loop(self.loop)
+
+
+# One batch of motions: beyond this the batch alone needs tens of GB (num_samples=1e6 asked for
+# terabytes); run several seeds instead.
+MAX_SAMPLES = 1024
+MAX_STEPS = 10000                  # denoising steps: a DDPM of 1000 steps is the most a model has
+
+
+def check_sampler_settings(keys: SamplerSettings) -> None:
+    """The sampler's numbers (SamplerSettings checks the sampler's name and steps >= 1)."""
+    require_range("steps", keys.steps, 1, MAX_STEPS, integer=True)
+    require_range("eta", keys.eta, 0, 1)
+    require_range("guidance_scale", keys.guidance_scale, 0, 100)
+
+
+def check_scene_route_keys(keys: SceneRouteKeys) -> None:
+    """The scene, route and device keys, before any model or scene is loaded."""
+    require_range("threads", keys.threads, 0, integer=True)
+    require_choice("scene_up", keys.scene_up, ("y", "z"))
+    require_choice("scene_unit", keys.scene_unit, ("m", "cm", "mm"))
+    # Finer than 5 mm, a room's grid runs to billions of voxels; coarser than 0.5 m the body
+    # fits between voxels (the grid's size is checked again against the scene itself).
+    require_range("voxel_size", keys.voxel_size, 0.005, 0.5)
+    if keys.start is not None:
+        parse_point(keys.start, "start")
+    require_range("start_yaw", keys.start_yaw, allow_none=True)
+    require_range("action_seconds", keys.action_seconds, 0, 3600)
+    require_choice("path", keys.path, ("astar", "straight"))
+    require_range("subgoal_spacing", keys.subgoal_spacing, 0.05, 100)
+    require_range("body_radius", keys.body_radius, 0, 2)
+    band = list(keys.body_height) if keys.body_height is not None else []
+    if len(band) != 2:
+        raise ConfigError(f"body_height: expected [low, high] in metres, got {keys.body_height!r}")
+    low = require_range("body_height[0]", band[0], 0, 3)
+    require_range("body_height[1]", band[1], low, 3, lo_open=True)
+
+
+def check_loop(loop: LoopConfig) -> None:
+    """The episode loop's numbers (LoopConfig's fields, `loop.*`)."""
+    r = require_range
+    r("loop.warmup", loop.warmup, 0, 1000, integer=True)
+    r("loop.transition", loop.transition, 0, 1000, integer=True, allow_none=True)
+    r("loop.reach", loop.reach, 0, 100, lo_open=True, allow_none=True)
+    r("loop.reach_fraction", loop.reach_fraction, 0, 10, lo_open=True)
+    r("loop.tolerance", loop.tolerance, 0, 100, lo_open=True)
+    r("loop.max_episodes", loop.max_episodes, 1, 100000, integer=True)
+    require_fps("loop.out_fps", loop.out_fps)
+    require_fps("loop.source_fps", loop.source_fps, allow_none=True)
+    r("loop.smooth", loop.smooth, 0, 1000)
+    r("loop.seam_blend", loop.seam_blend, 0, 60, allow_none=True)
+    r("loop.solve_smoothness", loop.solve_smoothness, 0, allow_none=True)
+    r("loop.seat_offset", loop.seat_offset, -2, 2)

@@ -46,8 +46,9 @@ def _dataset_scene(ds, scene_id: int, label: str, with_objects: bool) -> SceneIn
     return SceneInfo(grid, label, objects)
 
 
-def resolve_scene(spec, ckpt_config=None, voxel_size: float = 0.02, up: str = "y", objects: bool = True) -> SceneInfo:
-    """scene=None | 'none' | mesh file/folder | 'synthetic:ID' | 'dataset:PATH:ID'."""
+def resolve_scene(spec, ckpt_config=None, voxel_size: float = 0.02, up: str = "y", objects: bool = True,
+                  unit: str = "m") -> SceneInfo:
+    """scene=None | 'none' | mesh file/folder (in `unit`: m | cm | mm) | 'synthetic:ID' | 'dataset:PATH:ID'."""
     if spec is None or str(spec).strip().lower() in ("", "none", "null", "empty"):
         return SceneInfo(None, "empty floor")
     spec = str(spec)
@@ -68,7 +69,7 @@ def resolve_scene(spec, ckpt_config=None, voxel_size: float = 0.02, up: str = "y
         if not root:
             raise ConfigError(f"scene={spec!r}: expected dataset:PATH:ID")
         return _dataset_scene(MotionDataset.open(root), _scene_id(sid, spec), spec, objects)
-    return SceneInfo(load_scene_grid(spec, voxel_size=voxel_size, up=up), spec)
+    return SceneInfo(load_scene_grid(spec, voxel_size=voxel_size, up=up, unit=unit), spec)
 
 
 def _scene_id(s: str, spec: str) -> int:

@@ -10,6 +10,10 @@ import numpy as np
 from motiongen.errors import ConfigError
 from motiongen.rates import DATA_FPS, DEFAULT_STEPS
 from motiongen.sampling.goals import Route
+from motiongen.skeleton import PELVIS
+
+# What became of each goal of a sample (`Motion.goal_outcome`, `progress.goal_outcomes`).
+REACHED, STALLED, EPISODE_LIMIT, NOT_ATTEMPTED = "reached", "stalled", "episode limit", "not attempted"
 
 
 @dataclass
@@ -43,6 +47,11 @@ class LoopConfig:
     lookahead: bool = True         # target the farthest visible subgoal within reach
     tolerance: float = 0.25        # pelvis distance (m) that counts as arriving
     max_episodes: int = 200
+    # Seconds of motion without progress towards its current subgoal (coming STALL_MARGIN = 0.1 m
+    # closer, passing a subgoal, acting) after which a sample stops there and its goal fails;
+    # null or 0 = never (evaluation). 20 s: a walk covers a detour's subgoals one by one and an
+    # action counts as progress, so only a body that stands or wanders for that long trips it.
+    stall_s: float | None = 20.0
     out_fps: float = DATA_FPS
     source_fps: float | None = None  # rate of the training data (before stride); None = the checkpoint's
     project: bool = True           # one body: each episode projected onto it, and the final solve
@@ -63,6 +72,10 @@ class LoopConfig:
     # with mask.p_goal_y > 0.
     seat_actions: tuple[str, ...] = ("sit", "lie down")
     seat_offset: float = 0.10
+
+    def __post_init__(self):
+        if self.stall_s is not None and not 0 <= self.stall_s < float("inf"):
+            raise ConfigError(f"loop.stall_s: expected seconds >= 0 (0 or null: off), got {self.stall_s}")
 
 
 @dataclass
@@ -91,7 +104,7 @@ class Motion:
     episode_kinds: list[str]
     route: Route
     arrival_frame: np.ndarray      # (S, G) int output frame of arrival at each goal, -1 = never
-    arrival_error: np.ndarray      # (S, G) pelvis (x, z) distance to the goal there (m), nan = never
+    arrival_error: np.ndarray      # (S, G) output pelvis (x, z) closest approach near that frame (m), nan = never
     arrival_error_body: np.ndarray  # (S, G) same for the hips' midpoint
     finish_frame: np.ndarray       # (S,) output frame where the sample reached its final goal, -1 = never
     completed: bool                # every sample reached every goal
@@ -101,6 +114,18 @@ class Motion:
     contact_joints: list[str] = field(default_factory=list)
     bodies: list | None = None             # one motiongen.body.solve.BodyMotion per sample
     episodes: list[Episode] = field(default_factory=list, repr=False)
+    # (S, G) str per goal: reached | stalled | episode limit | not attempted (progress.goal_outcomes)
+    goal_outcome: np.ndarray | None = None
+
+    def failed_goals(self) -> list[dict]:
+        """Every goal a sample did not reach: {sample, goal (1-based), reason, distance_m (from
+        the pelvis at the motion's last frame)}; [] when the motion is complete."""
+        if self.goal_outcome is None:
+            return []
+        end = self.joints[:, -1, PELVIS][:, [0, 2]]                                       # (S, 2)
+        return [{"sample": int(s), "goal": int(g) + 1, "reason": str(self.goal_outcome[s, g]),
+                 "distance_m": round(float(np.linalg.norm(end[s] - self.route.goals[g].xz)), 3)}
+                for s, g in zip(*np.nonzero(self.goal_outcome != REACHED))]
 
     @property
     def num_samples(self) -> int:

@@ -15,11 +15,18 @@ import numpy as np
 import trimesh
 
 from motiongen.scene.occupancy import OccupancyGrid
-from motiongen.scene.voxelize import VOXELIZE_VERSION, voxelize_mesh
+from motiongen.scene.voxelize import VOXELIZE_VERSION, grid_frame, voxelize_mesh
 from motiongen.errors import DataError
 from motiongen.geometry import up_rotation
 
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
+UNITS_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}     # the `scene_unit` key: what a mesh file's 1.0 is
+# A scene wider than this (metres) is a mesh in centimetres or millimetres read as metres (a
+# 10 m room in cm reads as 1 km), or a terrain no walkable map of a room covers.
+MAX_SCENE_EXTENT_M = 200.0
+# Voxels of the dense grid voxelising makes (one byte each, with working copies several times
+# that): beyond this a typo in voxel_size or the unit would try to allocate tens of GB or more.
+MAX_GRID_VOXELS = 2_000_000_000
 
 
 # ---------------------------------------------------------------------------------------
@@ -55,19 +62,38 @@ def load_mesh_file(path: str | Path) -> trimesh.Trimesh:
     return loaded
 
 
-def load_scene_mesh(path: str | Path, up: str = "y") -> trimesh.Trimesh:
-    """A scene (mesh file or folder of mesh files, unioned) as one y-up Trimesh in metres."""
+def load_scene_mesh(path: str | Path, up: str = "y", unit: str = "m") -> trimesh.Trimesh:
+    """A scene (mesh file or folder of mesh files, unioned) as one y-up Trimesh in metres
+    (`unit`: the files' length unit, m | cm | mm)."""
     if up not in ("y", "z"):
         raise ValueError(f"up must be 'y' or 'z', got {up!r}")
+    if unit not in UNITS_M:
+        raise ValueError(f"unit must be one of {list(UNITS_M)}, got {unit!r}")
     meshes = [load_mesh_file(f) for f in scene_files(path)]
     # Concatenation keeps each file's vertices separate, so files stay separate components.
     mesh = meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)
+    to_y_up_m = np.eye(4) * UNITS_M[unit]
+    to_y_up_m[3, 3] = 1.0
     if up == "z":
+        to_y_up_m[:3, :3] = up_rotation("+z") * UNITS_M[unit]    # (x, y, z) -> (x, z, -y)
+    if up == "z" or unit != "m":
         mesh = mesh.copy()
-        z_to_y = np.eye(4)
-        z_to_y[:3, :3] = up_rotation("+z")                    # (x, y, z) -> (x, z, -y)
-        mesh.apply_transform(z_to_y)
+        mesh.apply_transform(to_y_up_m)
     return mesh
+
+
+def check_scene_size(mesh: trimesh.Trimesh, path: str | Path, voxel_size: float, unit: str = "m") -> None:
+    """Refuse a scene whose size says its unit is not the one given (centimetres read as
+    metres) or whose grid would not fit in memory, naming the key that fixes it."""
+    extent = float(np.ptp(mesh.bounds[:, [0, 2]], axis=0).max())
+    if extent > MAX_SCENE_EXTENT_M:
+        finer = {"m": "scene_unit=cm (or mm)", "cm": "scene_unit=mm", "mm": "a mesh in metres"}[unit]
+        raise DataError(path, None, f"scene is {extent:.4g} m across with scene_unit={unit}, more than "
+                                    f"{MAX_SCENE_EXTENT_M:g} m: if the mesh is in smaller units use {finer}")
+    voxels = int(np.prod(grid_frame(mesh, voxel_size)[1], dtype=np.float64))
+    if voxels > MAX_GRID_VOXELS:
+        raise DataError(path, None, f"voxel grid at voxel_size={voxel_size:g} would hold {voxels:.3g} voxels "
+                                    f"(at most {MAX_GRID_VOXELS:.0e}): use a larger voxel_size")
 
 
 # ---------------------------------------------------------------------------------------
@@ -93,7 +119,7 @@ def grid_cache_key(path: str | Path, **params) -> str:
 
 def load_scene_grid(path: str | Path, voxel_size: float = 0.02, cache_dir: str | Path | None = None,
                     bounds=None, up: str = "y", mode: str = "auto", shell_thickness: int = 1,
-                    use_cache: bool = True) -> OccupancyGrid:
+                    use_cache: bool = True, unit: str = "m") -> OccupancyGrid:
     """The scene's occupancy grid, voxelised once and then read (memory-mapped) from the cache.
 
     path: mesh file or folder; bounds: (2, 3) world min/max or None (mesh bounds + 1 voxel);
@@ -103,14 +129,18 @@ def load_scene_grid(path: str | Path, voxel_size: float = 0.02, cache_dir: str |
     path = Path(path)
     params = {"voxel_size": float(voxel_size), "up": up, "mode": mode, "shell_thickness": int(shell_thickness),
               "bounds": None if bounds is None else np.asarray(bounds, np.float64).round(9).tolist()}
+    if unit != "m":                          # metres keep the cache keys they always had
+        params["unit"] = unit
     stem = None
     if use_cache:
         cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
         stem = cache / f"{path.stem}-{grid_cache_key(path, **params)[:24]}"
         if Path(f"{stem}.occ.json").is_file() and Path(f"{stem}.occ.npy").is_file():
             return OccupancyGrid.load(stem)
-    grid = voxelize_mesh(load_scene_mesh(path, up=up), voxel_size, bounds=bounds, mode=mode,
-                         shell_thickness=shell_thickness)
+    mesh = load_scene_mesh(path, up=up, unit=unit)
+    if bounds is None:
+        check_scene_size(mesh, path, voxel_size, unit)
+    grid = voxelize_mesh(mesh, voxel_size, bounds=bounds, mode=mode, shell_thickness=shell_thickness)
     if stem is not None:
         stem.parent.mkdir(parents=True, exist_ok=True)
         grid.save(stem)  # .npy then .json, each by rename: a reader never sees half a grid

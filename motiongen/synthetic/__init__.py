@@ -20,6 +20,7 @@ from motiongen.synthetic.labels import ACTIONS
 from motiongen.synthetic.routes import walkable_room
 from motiongen.synthetic.scenes import MAX_OBJECTS, make_scene
 from motiongen.synthetic.timeline import make_sequence
+from motiongen.checks import require_range
 from motiongen.errors import ConfigError
 from motiongen.skeleton import BODY
 
@@ -63,6 +64,7 @@ def generate(root: str | Path, size: str = "default", seed: int = 0, overwrite: 
         raise ConfigError(f"synthetic size must be one of {sorted(SIZES)}, got {size!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ConfigError(f"synthetic seed must be a non-negative integer, got {seed!r}")
+    require_range("workers", workers, 1, 64, integer=True, allow_none=True)
     spec = SIZES[size]
     train = set(DEFAULT_SPLITS["train"])
     jobs = [(sid, int(seed), spec["train_frames"] if sid in train else spec["other_frames"], spec["seconds"])

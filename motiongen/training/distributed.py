@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass
 
 import torch
 import torch.distributed as dist
+
+from motiongen.errors import ConfigError
 
 
 @dataclass
@@ -22,6 +25,19 @@ class DistInfo:
     @property
     def enabled(self) -> bool:
         return self.world > 1
+
+
+def check_batch_split(key: str, batch_size: int) -> None:
+    """Refuse a global batch that torchrun's processes (WORLD_SIZE) cannot share evenly, before
+    the process group is joined: rank 0 says so in one line, the other ranks exit 2 silently
+    rather than each printing the same error."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1 or batch_size % world == 0:
+        return
+    if int(os.environ.get("RANK", "0")) != 0:
+        sys.exit(2)
+    raise ConfigError(f"{key}: {batch_size} does not split evenly over {world} processes; "
+                      f"use a multiple of {world}")
 
 
 def init_distributed(device_type: str) -> DistInfo:

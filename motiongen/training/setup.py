@@ -27,7 +27,7 @@ from motiongen.data.windows import NormStats, WindowDataset
 from motiongen.diffusion.gaussian import GaussianDiffusion
 from motiongen.errors import ConfigError
 from motiongen.importers.sources import open_dataset
-from motiongen.loading.build import build_from_config, data_config, window_config
+from motiongen.loading.build import build_from_config, data_config, load_weights, window_config
 from motiongen.loading.checkpoint import find_resume, load_checkpoint
 from motiongen.training import distributed as dd
 from motiongen.training.data_order import ResumableBatchSampler
@@ -141,6 +141,7 @@ def _process(tc: TrainConfig) -> tuple[torch.device, dd.DistInfo, str]:
     """This process's device, place in the process group and torch settings; the settings that
     need the device checked. Returns (device, process info, amp "bf16" | "none")."""
     device = resolve_device(tc.device)
+    dd.check_batch_split("train.batch_size", tc.batch_size)
     info = dd.init_distributed(device.type)
     if info.enabled and device.type == "cuda":
         device = torch.device("cuda", info.local_rank)
@@ -196,8 +197,8 @@ def _data(cfg: DictConfig, tc: TrainConfig, info: dd.DistInfo, state: dict | Non
 
 def _restore(run: Run, state: dict, ckpt_path: Path) -> None:
     """Weights, EMA, optimiser, schedule, position and this rank's RNGs from a checkpoint."""
-    run.model.load_state_dict(state["model"])
-    run.ema.load_state_dict(state["ema"])
+    load_weights(run.model, state["model"], ckpt_path, "model", "this run's config")
+    load_weights(run.ema.model, state["ema"], ckpt_path, "ema", "this run's config")
     run.opt.load_state_dict(state["optimizer"])
     run.sched.load_state_dict(state["scheduler"])
     run.step, run.best_val = int(state["step"]), float(state.get("best_val", float("inf")))

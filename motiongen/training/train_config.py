@@ -4,6 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from motiongen.checks import require_choice, require_range
+
+LR_SCHEDULES = ("constant", "cosine")
+AMP_MODES = ("auto", "bf16", "none")
+
 
 @dataclass
 class TrainConfig:
@@ -35,3 +40,21 @@ class TrainConfig:
     deterministic: bool = True       # deterministic kernels (bitwise resume on CPU)
     threads: int = 0                 # torch intra-op threads; 0 = auto (CPU: cores/processes - workers)
     progress: bool = True
+
+    def __post_init__(self):
+        """Every key's range, checked once as the run is set up, before any work (the split of
+        the batch over torchrun's processes: `distributed.check_batch_split`)."""
+        r = require_range
+        for key in ("max_steps", "batch_size", "log_every", "ckpt_every", "val_batches"):
+            r(f"train.{key}", getattr(self, key), 1, integer=True)
+        for key in ("warmup_steps", "val_every", "figure_every", "keep_last", "num_workers", "threads"):
+            r(f"train.{key}", getattr(self, key), 0, integer=True)
+        r("train.lr", self.lr, 0, lo_open=True)   # no ceiling: lr=1e20 is how a diverging run is reproduced
+        for key in ("weight_decay", "grad_clip", "pelvis_loss_weight"):
+            r(f"train.{key}", getattr(self, key), 0)
+        for key in ("min_lr_ratio", "cond_drop_scene", "cond_drop_actions"):
+            r(f"train.{key}", getattr(self, key), 0, 1)
+        # 1 or more makes the EMA weights grow without bound (1.5 reached 4.7e22).
+        r("train.ema_decay", self.ema_decay, 0, 1, hi_open=True)
+        require_choice("train.lr_schedule", self.lr_schedule, LR_SCHEDULES)
+        require_choice("train.amp", self.amp, AMP_MODES)

@@ -1,9 +1,17 @@
 """The training loop: `train` sets a run up (`motiongen.training.setup`), then steps it, with
-logging, validation, figures and checkpoints at their intervals."""
+logging, validation, figures and checkpoints at their intervals.
+
+The run's log goes through Python logging (Hydra's job logging: the console and
+`<run dir>/train.log`): a start line, a progress line at a log interval at most every
+`LINE_EVERY_S` seconds (and at the last step), the end. On a terminal the tqdm bar shows
+progress between them; with output redirected there is no bar, only those lines."""
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import logging
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -12,17 +20,22 @@ from typing import Iterator
 import torch
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
+from tqdm.contrib.logging import logging_redirect_tqdm
 
+from motiongen.cli import Interrupted
 from motiongen.diffusion.masks import loss_mask
 from motiongen.errors import MotiongenError
 from motiongen.loading.build import batch_condition, goal_predicted, known_mask_for_batch, loss_channel_weights
-from motiongen.loading.checkpoint import save_checkpoint
+from motiongen.loading.checkpoint import remove_orphan_temps, save_checkpoint
 from motiongen.training import distributed as dd
 from motiongen.training.figures import log_sample_figure
 from motiongen.training.setup import Run, rng_state, set_up
 from motiongen.training.validate import validation_loss
 
 CKPT_FORMAT = "motiongen-checkpoint"
+LINE_EVERY_S = 10.0       # the shortest time between two progress lines in the log
+
+log = logging.getLogger(__name__)
 
 
 class TrainingDiverged(MotiongenError):
@@ -43,22 +56,36 @@ class _Loop:
     sums: dict[str, torch.Tensor] = field(default_factory=dict)   # loss terms since the last log
     t_log: float = field(default_factory=time.perf_counter)
     n_log: int = 0                          # samples since the last log, all ranks
+    t_line: float = field(default_factory=time.perf_counter)     # the last progress line
+    saved_step: int | None = None           # the step of this run's last checkpoint
 
 
 def train(cfg: DictConfig, run_dir: Path) -> Path | None:
     """Train per `cfg` in `run_dir`; returns the last checkpoint's path on rank 0, None elsewhere."""
     run = set_up(cfg, run_dir)
+    if run.info.is_main:
+        remove_orphan_temps(run_dir / "checkpoints")     # left by a run killed mid-checkpoint
+        log.info(f"training in {run_dir}: step {run.step} of {run.tc.max_steps} on {run.device}"
+                 f"{f' x {run.info.world} processes' if run.info.enabled else ''}")
     loop = _start_loop(run)
     run.net.train()
-    while run.step < run.tc.max_steps:
-        _train_step(run, loop, next(loop.batches))
-        _at_intervals(run, loop)
+    try:
+        # Log lines printed above the bar rather than through it.
+        with logging_redirect_tqdm() if loop.bar else contextlib.nullcontext():
+            while run.step < run.tc.max_steps:
+                _train_step(run, loop, next(loop.batches))
+                _at_intervals(run, loop)
+                if loop.bar:
+                    loop.bar.update(1)
+    except KeyboardInterrupt:
+        raise Interrupted(_resume_note(run, loop)) from None
+    finally:
         if loop.bar:
-            loop.bar.update(1)
-    if loop.bar:
-        loop.bar.close()
-    if run.writer:
-        run.writer.close()
+            loop.bar.close()
+        if run.writer:
+            run.writer.close()
+    if run.info.is_main:
+        log.info(f"finished at step {run.step}")
     dd.barrier(run.info)
     dd.shutdown(run.info)
     return run_dir / "checkpoints" / "last.pt" if run.info.is_main else None
@@ -71,7 +98,8 @@ def _start_loop(run: Run) -> _Loop:
     predict_goal = goal_predicted(run.cfg)
     batches = iter(run.loader)
     bar = None
-    if run.info.is_main and tc.progress:
+    if run.info.is_main and tc.progress and sys.stderr.isatty():
+        # A bar only on a terminal: redirected, its redraws would pile up in one line of the file.
         bar = tqdm(total=tc.max_steps, initial=run.step, desc="train", dynamic_ncols=True)
     nonfinite = torch.zeros((), dtype=torch.bool, device=run.device)
     return _Loop(batches, autocast, weights, predict_goal, bar, nonfinite)
@@ -128,6 +156,7 @@ def _at_intervals(run: Run, loop: _Loop) -> None:
                           run.device, step)
     if at_ckpt or is_best:
         _checkpoint(run, best=is_best)
+        loop.saved_step = step
 
 
 def _log(run: Run, loop: _Loop) -> None:
@@ -143,7 +172,12 @@ def _log(run: Run, loop: _Loop) -> None:
         run.writer.add_scalar("train/samples_per_s", rate, step)
     if loop.bar:
         loop.bar.set_postfix(loss=f"{means['loss']:.4f}", rate=f"{rate:.0f}/s")
-    loop.sums, loop.t_log, loop.n_log = {}, time.perf_counter(), 0
+    now = time.perf_counter()
+    if run.info.is_main and (now - loop.t_line >= LINE_EVERY_S or step == tc.max_steps):
+        lr = run.sched.get_last_lr()[0]
+        log.info(f"step {step}/{tc.max_steps}  loss {means['loss']:.4f}  lr {lr:.3g}  {rate:.0f} samples/s")
+        loop.t_line = now
+    loop.sums, loop.t_log, loop.n_log = {}, now, 0
 
 
 def _validate(run: Run, loop: _Loop) -> bool:
@@ -155,6 +189,16 @@ def _validate(run: Run, loop: _Loop) -> bool:
         if v < run.best_val:
             run.best_val, is_best = v, True
     return bool(dd.gather_objects(is_best, run.info)[0])   # _checkpoint() is collective
+
+
+def _resume_note(run: Run, loop: _Loop) -> str:
+    """What a run interrupted at this point leaves to resume from."""
+    last = run.run_dir / "checkpoints" / "last.pt"
+    if loop.saved_step is not None:
+        return f"last checkpoint {last} (step {loop.saved_step}); continue with train.resume=auto"
+    if last.is_file():
+        return f"last checkpoint {last} (from before this run); continue with train.resume=auto"
+    return f"stopped at step {run.step}, before the first checkpoint: nothing to resume from"
 
 
 def _weights_checksum(model: torch.nn.Module) -> str:
