@@ -3,46 +3,120 @@ pelvis at the height of the seat or bed it sits or lies on."""
 
 from __future__ import annotations
 
+import itertools
+from typing import NamedTuple
+
 import numpy as np
+from scipy.spatial import cKDTree
 
 from motiongen.skeleton import BODY_JOINT_NAMES, FOOT_JOINTS, HAND_JOINTS, PELVIS
 from motiongen.spans import ramp_weights, true_runs
 
+# Every voxel face, edge and corner direction: (26, 3) in {-1, 0, 1}^3 less the zero vector.
+_DIRECTIONS = np.array([d for d in itertools.product((-1, 0, 1), repeat=3) if any(d)], np.int64)
+# A wrist candidate may sit this much (m) nearer an object than `palm`: floating-point slack only,
+# so a candidate pushed out from one object but too close to another one's voxels is dropped.
+_CLEARANCE_TOL = 1e-3
+# Voxels looked at per candidate when measuring its distance to the objects: the nearest voxel
+# box is among the nearest few voxel centres (a box's distance and its centre's differ by at
+# most half a voxel diagonal).
+_NEAREST = 16
 
-def object_points(objects) -> list[np.ndarray]:
-    """World points (N_k, 3) of each placed object [(OccupancyGrid, pose (4, 4))]: its occupied
-    voxel centres."""
+
+class ObjectSurface(NamedTuple):
+    """One placed object's geometry as `reach_targets` needs it, in world coordinates."""
+
+    skin: np.ndarray       # (M, 3) points on the object's surface: a surface voxel's face centre, edge or corner
+    normals: np.ndarray    # (M, 3) unit outward normal at each skin point
+    centres: np.ndarray    # (N, 3) every occupied voxel centre (the solid, for the clearance test)
+    rot: np.ndarray        # (3, 3) object-to-world rotation: voxel boxes are axis-aligned in the object frame
+    half: float            # half the voxel size (m)
+
+
+def surface_directions(occ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The outward directions of a solid's surface voxels: occ (X, Y, Z) bool -> (voxel index
+    (M, 3), direction (M, 3) in {-1, 0, 1}). A voxel's direction has +1 on an axis whose + neighbour
+    is free, -1 where the - neighbour is, 0 where neither is: the sum of its free 6-neighbour
+    directions. Where both neighbours on an axis are free (a wall one voxel thin) their sum
+    would cancel, so the voxel gets one direction per side instead; the grid's outside is free."""
+    pad = np.pad(np.asarray(occ, bool), 1)
+    core = (slice(1, -1),) * 3
+    free_pos = [~np.roll(pad, -1, a)[core] for a in range(3)]                    # 3 x (X, Y, Z)
+    free_neg = [~np.roll(pad, 1, a)[core] for a in range(3)]
+    ijk, dirs = [], []
+    for d in _DIRECTIONS:
+        m = pad[core].copy()
+        for a in range(3):
+            m &= free_pos[a] if d[a] > 0 else free_neg[a] if d[a] < 0 else ~(free_pos[a] | free_neg[a])
+        idx = np.argwhere(m)
+        ijk.append(idx), dirs.append(np.broadcast_to(d, idx.shape))
+    return np.concatenate(ijk), np.concatenate(dirs)
+
+
+def object_surfaces(objects) -> list[ObjectSurface]:
+    """Each placed object [(OccupancyGrid, pose (4, 4))] as an ObjectSurface."""
     out = []
     for grid, pose in objects:
-        local = grid.origin + (np.argwhere(np.asarray(grid.dense())) + 0.5) * grid.voxel_size     # (N, 3)
         pose = np.asarray(pose, np.float64)
-        out.append(local @ pose[:3, :3].T + pose[:3, 3])
+        rot, shift, h = pose[:3, :3], pose[:3, 3], grid.voxel_size / 2
+        occ = np.asarray(grid.dense(), bool)
+        ijk, d = surface_directions(occ)                                              # (M, 3) x 2
+        # The skin point is where the direction leaves the voxel's box: the face centre, edge
+        # midpoint or corner, so a wrist `palm` out along the normal is `palm` from this voxel.
+        skin = grid.origin + (ijk + 0.5) * grid.voxel_size + h * d                    # (M, 3) local
+        normals = d / np.linalg.norm(d, axis=-1, keepdims=True)                       # (M, 3) local
+        centres = grid.origin + (np.argwhere(occ) + 0.5) * grid.voxel_size            # (N, 3) local
+        out.append(ObjectSurface(skin @ rot.T + shift, normals @ rot.T, centres @ rot.T + shift, rot, h))
     return out
 
 
-def reach_targets(joints: np.ndarray, labels: np.ndarray, action: int, hands, points: list[np.ndarray],
+def object_distance(points: np.ndarray, surfaces: list[ObjectSurface]) -> np.ndarray:
+    """Distance (M,) of points (M, 3) to the nearest voxel box of any object (0 inside one)."""
+    centres = np.concatenate([s.centres for s in surfaces])                          # (N, 3)
+    owner = np.repeat(np.arange(len(surfaces)), [len(s.centres) for s in surfaces])   # (N,)
+    rots = np.stack([s.rot for s in surfaces])                                        # (K, 3, 3)
+    halves = np.array([s.half for s in surfaces])                                     # (K,)
+    k = min(_NEAREST, len(centres))
+    _, idx = cKDTree(centres).query(points, k=k)
+    idx = idx.reshape(len(points), k)                                                 # (M, k)
+    # The offset in each voxel's object frame, where its box is axis-aligned.
+    local = np.einsum("mkji,mkj->mki", rots[owner[idx]], points[:, None] - centres[idx])   # (M, k, 3)
+    gap = np.maximum(np.abs(local) - halves[owner[idx]][..., None], 0.0)
+    return np.linalg.norm(gap, axis=-1).min(1)
+
+
+def wrist_candidates(surfaces: list[ObjectSurface], palm: float, scene=None) -> np.ndarray:
+    """Where a wrist may be (M, 3): each skin point pushed `palm` out along its own normal, less
+    those nearer than `palm` to any object (an object's concave side, a neighbouring object: a
+    wrist there would put the hand inside) or inside the scene (the furniture under the object)."""
+    cand = np.concatenate([s.skin + palm * s.normals for s in surfaces])             # (M, 3)
+    if len(cand) == 0:
+        return cand
+    cand = cand[object_distance(cand, surfaces) >= palm - _CLEARANCE_TOL]
+    if scene is not None and len(cand):
+        cand = cand[~scene.occupied(cand, outside=False)]
+    return cand
+
+
+def reach_targets(joints: np.ndarray, labels: np.ndarray, action: int, hands, points: list,
                   scene=None, palm: float = 0.03, ramp: int = 8, max_dist: float = 0.5):
     """Where a hand must be for each run of frames labelled `action` (a hand interaction):
     joints (T, J, 3) the motion so far, labels (T,) action index per frame, hands: joint indices
-    to choose from (wrists), points: the objects' surface points, scene: the OccupancyGrid the
-    hand must stay out of (or None). Per run: the hand closest to an object, and the wrist
-    position `palm` metres out from the object surface (the wrist joint sits that far from the
-    palm's skin) that is nearest that hand and not inside the furniture the object stands on.
-    Weights ramp in and out over `ramp` frames so the reach is a movement, not a jump. A hand
-    farther than `max_dist` from every object is left alone: pulling it there would drag the
-    whole body. Returns (frames, joints, points, weights) or None when nothing is in reach."""
-    if not points:
+    to choose from (wrists), points: per object its ObjectSurface (`object_surfaces`), scene:
+    the OccupancyGrid the hand must stay out of (or None).
+    Per run: the hand closest to an object, and the wrist position `palm` metres out from an
+    object's surface (the wrist joint sits that far from the palm's skin), out of every object and
+    the scene, that is nearest that hand. Weights ramp in and out over `ramp` frames so the reach
+    is a movement, not a jump. A hand farther than `max_dist` from every candidate is left alone:
+    pulling it there would drag the whole body. Returns (frames, joints, points, weights) or None
+    when nothing is in reach, or no wrist position is free."""
+    surfaces = [s for s in points if len(s.centres)]
+    if not surfaces:
+        return None
+    cand = wrist_candidates(surfaces, palm, scene)                                    # (M, 3)
+    if not len(cand):
         return None
     frames, js, ps, ws = [], [], [], []
-    allp = np.concatenate(points)                                                         # (N, 3)
-    centre = allp.mean(0)
-    # Wrist candidates: every surface point pushed out from the objects' middle by `palm`.
-    out_dir = allp - centre
-    out_dir /= np.maximum(np.linalg.norm(out_dir, axis=-1, keepdims=True), 1e-9)
-    cand = allp + palm * out_dir                                                           # (N, 3)
-    if scene is not None:
-        free = ~scene.occupied(cand, outside=False)
-        cand = cand[free] if free.any() else cand
     for a, b in true_runs(labels == action):
         best = None
         for h in hands:
@@ -68,10 +142,10 @@ def hand_targets(joints: np.ndarray, labels: np.ndarray, names, hand_actions, ob
     acts = [names.index(a) for a in hand_actions if a in names]
     if not acts or not objects:
         return None
-    pts = object_points(objects)
+    surfaces = object_surfaces(objects)
     out = []
     for s in range(joints.shape[0]):
-        parts = [r for a in acts if (r := reach_targets(joints[s], labels[s], a, HAND_JOINTS, pts, scene)) is not None]
+        parts = [r for a in acts if (r := reach_targets(joints[s], labels[s], a, HAND_JOINTS, surfaces, scene)) is not None]
         out.append(merge_targets(*parts))
     return out
 
