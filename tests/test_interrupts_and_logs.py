@@ -77,6 +77,21 @@ def test_refused_run_leaves_no_run_directory(case, in_process, tmp_path, capsys)
     assert not (tmp_path / "runs").exists() and not (tmp_path / "outputs").exists()
 
 
+@pytest.mark.parametrize("args, words", [
+    (["sample", "out=/proc/run"], "out: cannot write under /proc"),
+    (["evaluate", "out={tmp}/file"], "out: {tmp}/file exists and is not a directory"),
+    (["train", "hydra.run.dir={tmp}/file/run"], "hydra.run.dir: {tmp}/file is a file, not a directory"),
+    (["train-body-mlp", "out={tmp}/file"], "out: {tmp}/file exists and is not a directory"),
+])
+def test_an_unusable_output_directory_is_one_line_before_hydra_starts(args, words, in_process, tmp_path, capsys):
+    """Hydra makes the run directory before the app runs: an unusable one was Hydra's traceback."""
+    (tmp_path / "file").write_text("mine")
+    code, _, err = run_here(capsys, *(a.format(tmp=tmp_path) for a in args))
+    line = f"error: {words.format(tmp=tmp_path)}"
+    assert code == 2 and err.startswith(line) and err.count("\n") == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"] and (tmp_path / "file").read_text() == "mine"
+
+
 @pytest.mark.parametrize("command", ["sample", "evaluate"])
 @pytest.mark.parametrize("user_file", [True, False])
 def test_refused_run_keeps_a_directory_that_was_there(command, user_file, in_process, tmp_path, capsys):

@@ -13,6 +13,7 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
+from motiongen.checks import require_output_path
 from motiongen.cli import CONFIG_DIR, Interrupted, check_hydra_overrides, ending_line, user_errors_exit_2
 from motiongen.config import register_configs
 
@@ -56,6 +57,9 @@ def hydra_command(config_name: str, task: Callable[[DictConfig, Path], object]) 
         prog = sys.argv[0] if argv is None else f"motiongen {config_name.replace('_', '-')}"
         argv = sys.argv[1:] if argv is None else list(argv)
         run_dir = check_hydra_overrides(argv, config_name=config_name, config_dir=CONFIG_DIR)
+        if run_dir is not None:                          # Hydra makes it first: one line, not its traceback
+            require_output_path("out" if any(a.startswith("out=") for a in argv) else "hydra.run.dir", run_dir,
+                                directory=True)
         before["run_dir"] = run_dir.resolve() if run_dir is not None and run_dir.exists() else None
         before["parent"] = _deepest_existing(run_dir) if run_dir is not None else None
         sys.argv = [prog, *argv]                         # hydra.main reads its overrides from sys.argv
