@@ -136,12 +136,16 @@ def test_evaluate_end_to_end(ckpt, tmp_path):
     rep2 = json.loads((out2 / "report.json").read_text())
     assert rep2["settings"]["static"]["model"] == {**rep["settings"]["static"]["model"],
                                                    "seconds_per_pair": rep2["settings"]["static"]["model"]["seconds_per_pair"]}
-    # loop.* keys reach the sampler: without the body the output is the network's own joints
+    # loop.* keys reach the sampler: without the body the output is the network's own joints;
+    # split=val evaluates a validation scene (where settings are chosen)
     out3 = tmp_path / "ev3"
+    val = [a if a != "scenes=[92]" else "scenes=[71]" for a in EVAL]
     r = _run("evaluate.py", [f"ckpt={ckpt}", f"out={out3}", "plots=false", "settings=[static]", "loop.project=false",
-                             "loop.smooth=0", *EVAL])
+                             "loop.smooth=0", "split=val", *val])
     assert r.returncode == 0, r.stderr[-3000:]
     rep3 = json.loads((out3 / "report.json").read_text())
+    assert rep3["meta"]["split"] == "val" and rep3["meta"]["scenes"] == [71] and rep["meta"]["split"] == "test"
+    assert "val scenes 71" in (out3 / "report.md").read_text()
     assert rep3["meta"]["protocol"]["loop"] == {"project": False, "smooth": 0.0}
     assert rep3["settings"]["static"]["model"]["bone_max_dev"] > 1e-3    # 0 with the body (above)
     assert "`loop.project=False`, `loop.smooth=0.0`" in (out3 / "report.md").read_text()
@@ -151,6 +155,8 @@ def test_evaluate_end_to_end(ckpt, tmp_path):
     (["ckpt=/nonexistent/x.pt"], "does not exist"),
     (["scenes=[5]"], "not among the test scenes"),
     (["scenes=[1234]"], "not among the test scenes"),
+    (["split=val", "scenes=[91]"], "not among the val scenes"),
+    (["split=train"], "split: expected one of val, test, got 'train'"),
     (["settings=[bogus]"], "settings"),
     (["data=dataset", "data.root=NOTEST"], "no test scenes"),
     (["loop.smooth=-1"], "loop.smooth: expected a number >= 0"),

@@ -1,5 +1,5 @@
 """`motiongen evaluate` (evaluate.py): the static/dynamic protocol (TRUMANS supplement A.1) on
-the test scenes of the checkpoint's dataset, with the dataset's own motion as a reference row,
+the test (or, `split=val`, validation) scenes of the checkpoint's dataset, with the dataset's own motion as a reference row,
 reported as report.json, report.md and plots/ in `out` and, with `run_dir=`, in TensorBoard.
 The keys: EvaluateConfig (motiongen/eval/evaluate_config.py) through configs/evaluate.yaml;
 docs/evaluation.md explains every column."""
@@ -43,14 +43,15 @@ def evaluate_and_write(cfg: EvaluateConfig, out: Path, ckpt: Path, settings: lis
     mocap = [cfg.mocap] if isinstance(cfg.mocap, str) else list(cfg.mocap or [])
     for name in ("report.json", "report.md", "plots"):     # the report never goes over what the run reads
         refuse_output_over_input(out / name, [ckpt, ds.root, *mocap], "out")
-    scenes = chosen_scenes(cfg.scenes, ds)
+    scenes = chosen_scenes(cfg.scenes, ds, cfg.split)
     if set(loaded.joint_set.names) != set(ds.joint_set.names):
         raise ConfigError(f"the checkpoint's joints ({len(loaded.joint_set.names)}) differ from the dataset's "
                           f"({len(ds.joint_set.names)}): evaluate on the data it was trained on")
     protocol, sampler = protocol_config(cfg), SamplerSettings.of(cfg)
     ev = evaluate(loaded, ds, scenes, protocol, settings, sampler, progress=cfg.progress,
                   log=lambda m: print(m, flush=True), body_model=load_body_model(cfg.body_model))
-    meta = {"ckpt": str(ckpt), "step": loaded.step, "dataset": str(ds.root), "scenes": scenes, "k": cfg.k,
+    meta = {"ckpt": str(ckpt), "step": loaded.step, "dataset": str(ds.root), "split": cfg.split, "scenes": scenes,
+            "k": cfg.k,
             "pairs": cfg.pairs, "sampler": sampler.sampler, "steps": sampler.steps, "eta": sampler.eta,
             "guidance_scale": sampler.guidance_scale, "seed": cfg.seed, "settings": settings,
             "protocol": {k: (list(v) if isinstance(v, tuple) else v) for k, v in protocol.__dict__.items()},
@@ -80,23 +81,24 @@ def chosen_settings(value) -> list[str]:
     return settings
 
 
-def chosen_scenes(value, ds: MotionDataset) -> list[int]:
-    """The `scenes` key: ids among the dataset's test scenes, all of them when null."""
-    test = [s for s in ds.splits.get("test", []) if s in ds.scenes]
-    if not test:
-        raise ConfigError(f"dataset {ds.root} has no test scenes (splits: "
+def chosen_scenes(value, ds: MotionDataset, split: str = "test") -> list[int]:
+    """The `scenes` key: ids among the dataset's scenes of `split` (val or test), all of them
+    when null."""
+    ids = [s for s in ds.splits.get(split, []) if s in ds.scenes]
+    if not ids:
+        raise ConfigError(f"dataset {ds.root} has no {split} scenes (splits: "
                           f"{ {k: len(v) for k, v in ds.splits.items()} }); set data.splits")
     if value is None:
-        return test
+        return ids
     scenes = [value] if isinstance(value, (int, str)) else list(value)
     try:
         scenes = [int(s) for s in scenes]
     except (TypeError, ValueError):
         raise ConfigError(f"scenes: expected a list of scene ids, got {scenes!r}") from None
-    unknown = [s for s in scenes if s not in test]
+    unknown = [s for s in scenes if s not in ids]
     if unknown or not scenes:
-        raise ConfigError(f"scenes: {unknown or scenes} not among the test scenes of {ds.root} "
-                          f"({', '.join(str(s) for s in test)})")
+        raise ConfigError(f"scenes: {unknown or scenes} not among the {split} scenes of {ds.root} "
+                          f"({', '.join(str(s) for s in ids)})")
     return scenes
 
 

@@ -10,7 +10,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from motiongen.checks import require_range
+from motiongen.checks import require_choice, require_range
 from motiongen.cli import typed_config
 from motiongen.errors import ConfigError
 from motiongen.eval.pairs import SETTINGS, ProtocolConfig
@@ -18,6 +18,10 @@ from motiongen.importers.sources import DataConfig
 from motiongen.loading.keys import CheckpointKeys
 from motiongen.sampling.sample_config import MAX_SAMPLES, check_sampler_settings
 from motiongen.sampling.settings import SamplerSettings
+
+
+# The splits `evaluate` runs on: the training scenes are what the model has seen.
+SPLITS = ("val", "test")
 
 
 @dataclass
@@ -39,7 +43,10 @@ class EvaluateScope(CheckpointKeys):
     # data=small|synthetic|dataset ... (a DataConfig once chosen; untyped until then, since
     # OmegaConf cannot set `data.root=...` on an empty typed node)
     data: Any = None
-    scenes: Any = None              # subset of the test scene ids, e.g. [91,92]; None = all test scenes
+    # The split whose scenes are evaluated: `val` to choose settings and defaults, `test` to report
+    # a recipe once those are fixed (docs/evaluation.md, "Validation and test").
+    split: str = "test"
+    scenes: Any = None              # subset of the split's scene ids, e.g. [91,92]; None = all of them
     settings: Any = field(default_factory=lambda: list(SETTINGS))
     # BVH files or folders: a "real mocap" row in the Body table, measured the same way (e.g.
     # mocap=/usr/share/assimp/models/BVH from Debian's assimp-testmodels).
@@ -67,6 +74,7 @@ class EvaluateConfig(SamplerSettings, ProtocolConfig, EvaluateScope):
         check_sampler_settings(self)
         check_protocol_keys(self)
         require_range("threads", self.threads, 0, integer=True)
+        require_choice("split", self.split, SPLITS)
         mocap_paths(self.mocap)
 
 

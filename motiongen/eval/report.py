@@ -97,7 +97,7 @@ def _fmt(v, unit: str) -> str:
 def markdown(report: dict) -> str:
     m = report["meta"]
     lines = [f"# Evaluation: `{m['ckpt']}` (step {m['step']})", "",
-             f"Dataset `{m['dataset']}`, test scenes {', '.join(str(s) for s in m['scenes'])}; "
+             f"Dataset `{m['dataset']}`, {m.get('split', 'test')} scenes {', '.join(str(s) for s in m['scenes'])}; "
              f"k = {m['k']} samples per pair, {m['pairs']} pairs per scene and setting; "
              f"{m['sampler'].upper()}-{m['steps']}, guidance {m['guidance_scale']}, seed {m['seed']}. "
              f"Wall time {report['wall_s']:.0f} s.", "",
