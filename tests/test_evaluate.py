@@ -90,12 +90,14 @@ def _run(script, args, timeout=300):
                           cwd=ROOT, timeout=timeout)
 
 
+TRAIN = ["train.max_steps=100", "train.batch_size=8", "train.num_workers=0", "train.val_every=0", "train.figure_every=0",
+         "train.ckpt_every=100", "train.progress=false", "train.threads=1", *TINY]
+
+
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory):
     run = tmp_path_factory.mktemp("train")
-    r = _run("train.py", ["data=small", f"hydra.run.dir={run}", "train.max_steps=100", "train.batch_size=8",
-                          "train.num_workers=0", "train.val_every=0", "train.figure_every=0", "train.ckpt_every=100",
-                          "train.progress=false", "train.threads=1", *TINY])
+    r = _run("train.py", ["data=small", f"hydra.run.dir={run}", *TRAIN])
     assert r.returncode == 0, r.stderr[-2000:]
     return run / "checkpoints" / "last.pt"
 
@@ -151,12 +153,45 @@ def test_evaluate_end_to_end(ckpt, tmp_path):
     assert "`loop.project=False`, `loop.smooth=0.0`" in (out3 / "report.md").read_text()
 
 
+def test_evaluate_over_several_checkpoints_reports_mean_and_spread(ckpt, tmp_path, capsys):
+    """ckpt=[a,b]: the same recipe with another training seed; each figure is the mean of the two
+    single-checkpoint evaluations, its spread their sample standard deviation, and the data row
+    (the same motion for both) has no spread."""
+    from motiongen.eval.seeds import aggregate_reports
+
+    other = tmp_path / "seed1"
+    r = _run("train.py", ["data=small", f"hydra.run.dir={other}", "seed=1", *TRAIN])
+    assert r.returncode == 0, r.stderr[-2000:]
+    other = other / "checkpoints" / "last.pt"
+    args = ["plots=false", "settings=[static]", "progress=false", *EVAL]
+    reps = []
+    for name, ck in (("a", ckpt), ("b", other), ("ab", f"[{ckpt},{other}]")):
+        res = run_command("evaluate", [f"ckpt={ck}", f"out={tmp_path / name}", *args], capsys)
+        assert res.returncode == 0, res.stderr[-2000:]
+        reps.append(json.loads((tmp_path / name / "report.json").read_text()))
+    a, b, ab = (x["settings"]["static"] for x in reps)
+    for key in ("bone_max_dev", "foot_skating", "goal_dist_body_m"):
+        va, vb = a["model_raw"][key], b["model_raw"][key]
+        assert va != vb                                                        # two different networks
+        assert ab["model_raw"][key] == pytest.approx((va + vb) / 2)
+        assert ab["spread"]["model_raw"][key] == pytest.approx(abs(va - vb) / np.sqrt(2))
+        assert ab["per_ckpt"]["model_raw"][key] == [va, vb]
+    assert ab["reference"]["foot_skating"] == a["reference"]["foot_skating"] and not ab["spread"]["reference"]["foot_skating"]
+    assert reps[2]["meta"]["ckpts"] == [str(ckpt), str(other)] and len(reps[2]["checkpoints"]) == 2
+    md = (tmp_path / "ab" / "report.md").read_text()
+    assert md.startswith("# Evaluation: 2 checkpoints") and " ± " in md
+    assert aggregate_reports([reps[0]])["settings"]["static"]["spread"]["model"]["foot_skating"] is None
+
+
 @pytest.mark.parametrize("args, needle", [
     (["ckpt=/nonexistent/x.pt"], "does not exist"),
     (["scenes=[5]"], "not among the test scenes"),
     (["scenes=[1234]"], "not among the test scenes"),
     (["split=val", "scenes=[91]"], "not among the val scenes"),
     (["split=train"], "split: expected one of val, test, got 'train'"),
+    (["ckpt=[]"], "ckpt=PATH is required"),
+    (["ckpt=[CKPT,/nonexistent/x.pt]"], "/nonexistent/x.pt: checkpoint file does not exist"),   # before any evaluation
+    (["ckpt=[CKPT,CKPT]"], "ckpt: a checkpoint is listed twice"),
     (["settings=[bogus]"], "settings"),
     (["data=dataset", "data.root=NOTEST"], "no test scenes"),
     (["loop.smooth=-1"], "loop.smooth: expected a number >= 0"),
@@ -172,6 +207,7 @@ def test_evaluate_user_errors(ckpt, tmp_path, args, needle, capsys):
 
         root = make_dataset(tmp_path / "notest", scenes=(1, 71), seqs_per_scene=1, T=60)
         args = [a.replace("NOTEST", str(root)) for a in args]
+    args = [x.replace("CKPT", str(ckpt)) for x in args]
     a = [f"ckpt={ckpt}", f"out={tmp_path}", *args] if not args[0].startswith("ckpt=") else [f"out={tmp_path}", *args]
     r = run_command("evaluate", a, capsys)
     assert r.returncode == 2, (r.stdout[-1000:], r.stderr[-1000:])

@@ -6,6 +6,8 @@ docs/evaluation.md explains every column."""
 
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -21,7 +23,9 @@ from motiongen.eval.pairs import SETTINGS
 from motiongen.eval.protocol import evaluate
 from motiongen.eval.report import build_report, log_tensorboard, markdown, write_report
 from motiongen.importers.sources import open_dataset
-from motiongen.loading.keys import checkpoint_path, load_checkpoint_model
+from motiongen.eval.seeds import aggregate_reports
+from motiongen.loading.build import LoadedModel
+from motiongen.loading.keys import load_checkpoint_model
 from motiongen.output_lock import OutputLock, claim_run_dir, refuse_output_over_input
 from motiongen.sampling.settings import SamplerSettings
 from motiongen.staging import record_outputs
@@ -29,47 +33,92 @@ from motiongen.staging import record_outputs
 
 def run(cfg: EvaluateConfig, default_out: Path) -> dict:
     """The whole `evaluate` run. Returns the report dict."""
-    ckpt = checkpoint_path(cfg)
+    ckpts = checkpoint_paths(cfg.ckpt)
     settings = chosen_settings(cfg.settings)
     # One live run per directory; without out= each run gets a directory of its own.
     with OutputLock(cfg.out, "evaluate") if cfg.out else claim_run_dir(default_out, "evaluate") as lock:
-        return evaluate_and_write(cfg, lock.dir, ckpt, settings)
+        return evaluate_and_write(cfg, lock.dir, ckpts, settings)
 
 
-def evaluate_and_write(cfg: EvaluateConfig, out: Path, ckpt: Path, settings: list[str]) -> dict:
-    """The evaluation and its report in `out`, replacing the report a previous run wrote there."""
+@dataclass
+class Prepared:
+    """A checkpoint ready to evaluate: its keys, model, dataset and scenes."""
+
+    cfg: EvaluateConfig
+    ckpt: Path
+    loaded: LoadedModel
+    ds: MotionDataset
+    scenes: list[int]
+
+
+def evaluate_and_write(cfg: EvaluateConfig, out: Path, ckpts: list[Path], settings: list[str]) -> dict:
+    """The evaluation of every checkpoint (one report; over several, the mean and spread of each
+    figure) in `out`, replacing the report a previous run wrote there. Every checkpoint is
+    loaded and checked before the first is evaluated."""
+    mocap = [cfg.mocap] if isinstance(cfg.mocap, str) else list(cfg.mocap or [])
+    runs = [prepare(dataclasses.replace(cfg, ckpt=str(c)), c, out, mocap) for c in ckpts]
+    roots = {str(r.ds.root) for r in runs}
+    if len(roots) > 1:
+        raise ConfigError(f"ckpt: the checkpoints were trained on different datasets ({', '.join(sorted(roots))}); "
+                          "a mean over seeds needs one dataset (give data= to evaluate them all on one)")
+    mocap_row = mocap_body_metrics(mocap, runs[0].ds.fps) if mocap else None
+    done = [evaluate_one(r, settings, mocap_row) for r in runs]
+    report = done[0][0] if len(done) == 1 else aggregate_reports([rep for rep, _ in done])
+    md = markdown(report)
+    first = runs[0]
+    title = f"{first.ckpt.name} step {first.loaded.step}" + (f" (1 of {len(runs)} checkpoints)" if len(runs) > 1 else "")
+    written, images = write_report(out, report, md, done[0][1], title, cfg.plots)
+    record_outputs(out, "evaluate", written, keep=[*ckpts, *mocap])   # the previous run's extra plots go
+    if cfg.run_dir:
+        log_tensorboard(Path(cfg.run_dir), {**report, "_markdown": md}, images, first.loaded.step)
+    print(md, flush=True)
+    print(f"wrote {len(written)} files to {out} (report.json, report.md, plots/)" +
+          (f"; logged to TensorBoard in {cfg.run_dir}" if cfg.run_dir else ""), flush=True)
+    return report
+
+
+def prepare(cfg: EvaluateConfig, ckpt: Path, out: Path, mocap: list) -> Prepared:
+    """Load one checkpoint and its dataset, and check them against the keys and `out`."""
     loaded = load_checkpoint_model(cfg)
     ds = open_dataset(dataset_config(cfg.data, loaded.config), verbose=True)
-    mocap = [cfg.mocap] if isinstance(cfg.mocap, str) else list(cfg.mocap or [])
     for name in ("report.json", "report.md", "plots"):     # the report never goes over what the run reads
         refuse_output_over_input(out / name, [ckpt, ds.root, *mocap], "out")
     scenes = chosen_scenes(cfg.scenes, ds, cfg.split)
     if set(loaded.joint_set.names) != set(ds.joint_set.names):
         raise ConfigError(f"the checkpoint's joints ({len(loaded.joint_set.names)}) differ from the dataset's "
                           f"({len(ds.joint_set.names)}): evaluate on the data it was trained on")
+    return Prepared(cfg, ckpt, loaded, ds, scenes)
+
+
+def evaluate_one(p: Prepared, settings: list[str], mocap_row: dict | None):
+    """One checkpoint's evaluation: (its report dict, the Evaluation)."""
+    cfg, loaded = p.cfg, p.loaded
     protocol, sampler = protocol_config(cfg), SamplerSettings.of(cfg)
-    ev = evaluate(loaded, ds, scenes, protocol, settings, sampler, progress=cfg.progress,
+    print(f"evaluating {p.ckpt} (step {loaded.step})", flush=True)
+    ev = evaluate(loaded, p.ds, p.scenes, protocol, settings, sampler, progress=cfg.progress,
                   log=lambda m: print(m, flush=True), body_model=load_body_model(cfg.body_model))
-    meta = {"ckpt": str(ckpt), "step": loaded.step, "dataset": str(ds.root), "split": cfg.split, "scenes": scenes,
-            "k": cfg.k,
-            "pairs": cfg.pairs, "sampler": sampler.sampler, "steps": sampler.steps, "eta": sampler.eta,
-            "guidance_scale": sampler.guidance_scale, "seed": cfg.seed, "settings": settings,
+    meta = {"ckpt": str(p.ckpt), "step": loaded.step, "dataset": str(p.ds.root), "split": cfg.split,
+            "scenes": p.scenes, "k": cfg.k, "pairs": cfg.pairs, "sampler": sampler.sampler, "steps": sampler.steps,
+            "eta": sampler.eta, "guidance_scale": sampler.guidance_scale, "seed": cfg.seed, "settings": settings,
             "protocol": {k: (list(v) if isinstance(v, tuple) else v) for k, v in protocol.__dict__.items()},
             "device": cfg.device, "precision": loaded.precision, "torch_threads": torch.get_num_threads(),
             "goal_pinned": not loaded.predict_goal}
-    if cfg.mocap:
-        meta["mocap_row"] = mocap_body_metrics([cfg.mocap] if isinstance(cfg.mocap, str) else list(cfg.mocap), ds.fps)
+    if mocap_row is not None:
+        meta["mocap_row"] = mocap_row
     report = build_report(ev, meta)
     report["meta"].pop("mocap_row", None)
-    md = markdown(report)
-    written, images = write_report(out, report, md, ev, f"{ckpt.name} step {loaded.step}", cfg.plots)
-    record_outputs(out, "evaluate", written, keep=[ckpt, *mocap])      # the previous run's extra plots go
-    if cfg.run_dir:
-        log_tensorboard(Path(cfg.run_dir), {**report, "_markdown": md}, images, loaded.step)
-    print(md, flush=True)
-    print(f"wrote {len(written)} files to {out} (report.json, report.md, plots/)" +
-          (f"; logged to TensorBoard in {cfg.run_dir}" if cfg.run_dir else ""), flush=True)
-    return report
+    return report, ev
+
+
+def checkpoint_paths(value) -> list[Path]:
+    """The `ckpt` key: one checkpoint, or a list of them (one recipe trained with several seeds)."""
+    items = [value] if isinstance(value, (str, Path)) or value is None else list(value)
+    if not items or any(v in (None, "") for v in items):
+        raise ConfigError("ckpt=PATH is required (a checkpoint written by train.py; ckpt=[a,b,c] for several seeds)")
+    paths = [Path(str(v)) for v in items]
+    if len(set(map(str, paths))) != len(paths):
+        raise ConfigError(f"ckpt: a checkpoint is listed twice ({', '.join(map(str, paths))})")
+    return paths
 
 
 def chosen_settings(value) -> list[str]:

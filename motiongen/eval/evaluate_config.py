@@ -39,6 +39,9 @@ class LoopOverrides:
 
 @dataclass
 class EvaluateScope(CheckpointKeys):
+    # One checkpoint, or a list of them (one recipe trained with several seeds): the report gives
+    # each figure's mean over them and its spread.
+    ckpt: Any = None
     # The `data` group: None = the checkpoint's own data config (its dataset's test split); or
     # data=small|synthetic|dataset ... (a DataConfig once chosen; untyped until then, since
     # OmegaConf cannot set `data.root=...` on an empty typed node)

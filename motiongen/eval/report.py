@@ -94,9 +94,26 @@ def _fmt(v, unit: str) -> str:
     return f"{v:.3g}" if a >= 100 or a < 0.01 and a > 0 else f"{v:.3f}"
 
 
+def _cell(block: dict, row: str, key: str, unit: str) -> str:
+    """A table cell: the row's value, with ± its spread over checkpoints where it has one."""
+    v = (block.get(row) or {}).get(key)
+    sd = ((block.get("spread") or {}).get(row) or {}).get(key)
+    return _fmt(v, unit) + (f" ± {_fmt(sd, unit)}" if sd else "")
+
+
+def _title(m: dict) -> list[str]:
+    """The heading: one checkpoint, or the checkpoints a mean is over."""
+    if "ckpts" not in m:
+        return [f"# Evaluation: `{m['ckpt']}` (step {m['step']})", ""]
+    return [f"# Evaluation: {len(m['ckpts'])} checkpoints", "",
+            "Every figure is the mean over the checkpoints ± their sample standard deviation "
+            "(one training seed each): " + ", ".join(f"`{c}` (step {s})" for c, s in zip(m["ckpts"], m["ckpt_steps"]))
+            + ".", ""]
+
+
 def markdown(report: dict) -> str:
     m = report["meta"]
-    lines = [f"# Evaluation: `{m['ckpt']}` (step {m['step']})", "",
+    lines = [*_title(m),
              f"Dataset `{m['dataset']}`, {m.get('split', 'test')} scenes {', '.join(str(s) for s in m['scenes'])}; "
              f"k = {m['k']} samples per pair, {m['pairs']} pairs per scene and setting; "
              f"{m['sampler'].upper()}-{m['steps']}, guidance {m['guidance_scale']}, seed {m['seed']}. "
@@ -132,7 +149,7 @@ def markdown(report: dict) -> str:
                 row = block.get(key) or {}
                 if key == "mocap" and (not row or title != "Body"):
                     continue
-                lines.append(f"| {name} | " + " | ".join(_fmt(row.get(k), u) for k, _, u, _ in keys) + " |")
+                lines.append(f"| {name} | " + " | ".join(_cell(block, key, k, u) for k, _, u, _ in keys) + " |")
             lines.append("")
         lines += [f"![{st} metrics](plots/{st}_metrics.png)", ""]
     if report["notes"]:

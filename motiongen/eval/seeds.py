@@ -1,0 +1,59 @@
+"""One report over several checkpoints (`evaluate ckpt=[a,b,c]`: the same recipe trained with
+different seeds): per figure the mean over checkpoints, its spread (sample standard deviation)
+and each checkpoint's value. A recipe's figure is its mean; a difference between two recipes
+smaller than their spreads is not one."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from motiongen.eval.report import ROWS
+
+
+def _numbers(rows: list[dict]) -> dict[str, list]:
+    """Per key, the values of every row (None where a row has no finite number)."""
+    keys = [k for k in rows[0] if all(k in r for r in rows)]
+    out = {}
+    for k in keys:
+        vals = [r[k] for r in rows]
+        if all(isinstance(v, (int, float)) and not isinstance(v, bool) or v is None for v in vals):
+            out[k] = [None if v is None or not math.isfinite(float(v)) else float(v) for v in vals]
+    return out
+
+
+def _stats(values: list) -> tuple[float | None, float | None]:
+    """(mean, sample standard deviation) of the values given (None: missing); std None for one."""
+    x = np.array([v for v in values if v is not None], np.float64)
+    if not len(x):
+        return None, None
+    return float(x.mean()), (float(x.std(ddof=1)) if len(x) > 1 else None)
+
+
+def aggregate_reports(reports: list[dict]) -> dict:
+    """The report of several checkpoints' evaluations (`build_report` dicts of the same scenes,
+    settings and protocol): the first's meta with `ckpts`/`ckpt_steps`, per setting and row
+    the mean of every figure, `spread` (the standard deviation) and `per_ckpt` (the values),
+    and the pairs of each checkpoint under `checkpoints`."""
+    first = reports[0]
+    meta = {**first["meta"], "ckpt": f"{len(reports)} checkpoints",
+            "ckpts": [r["meta"]["ckpt"] for r in reports], "ckpt_steps": [r["meta"]["step"] for r in reports]}
+    out = {"meta": meta, "metrics": first["metrics"], "notes": sorted({n for r in reports for n in r["notes"]}),
+           "wall_s": sum(r["wall_s"] for r in reports), "settings": {},
+           "checkpoints": [{"ckpt": r["meta"]["ckpt"], "pairs": {st: b["pairs"] for st, b in r["settings"].items()}}
+                           for r in reports]}
+    for st, block in first["settings"].items():
+        agg = {"pairs": block["pairs"], "spread": {}, "per_ckpt": {}}
+        for row, _ in ROWS:
+            rows = [r["settings"][st].get(row) or {} for r in reports]
+            if not any(rows):
+                agg[row] = {}
+                continue
+            nums = _numbers(rows)
+            stats = {k: _stats(v) for k, v in nums.items()}
+            agg[row] = {**rows[0], **{k: m for k, (m, _) in stats.items()}}
+            agg["spread"][row] = {k: s for k, (_, s) in stats.items()}
+            agg["per_ckpt"][row] = nums
+        out["settings"][st] = agg
+    return out
