@@ -18,7 +18,8 @@ from motiongen.metrics import bone_consistency, bone_lengths
 from motiongen.sampling import Goal, LoopConfig, SamplerSettings, generate, plan_scene_route
 from motiongen.sampling.assemble import blend_seam
 from motiongen.sampling.progress import output_arrival_errors, stall_rule
-from motiongen.skeleton import BODY, BODY_PARENTS, LEFT_HIP, PELVIS, RIGHT_HIP
+from motiongen.scene.occupancy import OccupancyGrid
+from motiongen.skeleton import BODY, BODY_PARENTS, HAND_JOINTS, LEFT_HIP, PELVIS, RIGHT_HIP
 from tests.helpers import REST
 
 J, L = 22, 16
@@ -294,3 +295,33 @@ def test_stall_rule():
     assert (best[0], moved[0]) == (2.0, 10)
     best, moved, _ = one(best[0], moved[0], 1.89, 30)                  # ... 11 cm closer in two steps: progress
     assert (best[0], moved[0]) == (1.89, 30)
+
+
+def test_the_clean_up_in_the_loop_seats_the_body_among_placed_objects():
+    """The whole loop with the clean-up on, in a scene with a seat, and a cup placed on a table:
+    while sitting the pelvis is `seat_offset` above the seat top; no wrist ever enters the cup.
+    (The oracle's arms are held out in a T: its wrists stay beyond the hand reach's range, so
+    the reach itself is tested on known geometry in tests/test_interactions.py.)"""
+    occ = np.zeros((150, 60, 150), bool)                       # 4 cm voxels, origin (-3, 0, -3): 6 x 2.4 x 6 m
+    occ[95:107, 0:11, 45:57] = True                            # a seat: x, z in [0.8, 1.28) x [-1.2, -0.72), top 0.44 m
+    occ[45:55, 0:18, 95:105] = True                            # a table: x, z in [-1.2, -0.8) x [0.8, 1.2), top 0.72 m
+    scene = OccupancyGrid.from_dense(occ, [-3.0, 0.0, -3.0], 0.04)
+    ii, kk = np.meshgrid(np.arange(8), np.arange(8), indexing="ij")
+    cup_occ = np.repeat((((ii - 3.5) ** 2 + (kk - 3.5) ** 2) <= 3.5 ** 2)[:, None, :], 10, 1)   # r 4 cm, 10 cm tall
+    cup = OccupancyGrid.from_dense(cup_occ, [-0.04, 0.0, -0.04], 0.01)
+    cup_pose = np.eye(4)
+    cup_pose[:3, 3] = [-1.0, 0.72, 1.0]                                                  # on the table
+    loaded = _loaded(predict_goal=True)
+    loaded.action_names = ["walk", "sit", "pick up"]
+    route, fmap = plan_scene_route((0.0, 0.0), [Goal([1.04, -0.96], "sit", 1.0)], loaded.action_names, scene)
+    m = generate(loaded, scene, route=route, walkable=fmap, objects=[(cup, cup_pose)],
+                 generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 2),
+                 loop=LoopConfig(stall_s=None))
+    assert m.completed, m.goal_outcome
+    sit = np.flatnonzero(m.actions[0] == 1)
+    mid = sit[len(sit) // 3: 2 * len(sit) // 3]                                          # past the ramps
+    assert len(mid) > 5 and np.allclose(m.joints[0, mid, PELVIS, 1], 0.44 + 0.10, atol=0.02), \
+        m.joints[0, mid, PELVIS, 1]
+    cup_pts = (np.argwhere(cup_occ) + 0.5) * 0.01 + cup.origin + cup_pose[:3, 3]         # (N, 3) voxel centres
+    wrists = m.joints[0][:, list(HAND_JOINTS)].reshape(-1, 3)                            # (2T, 3)
+    assert np.linalg.norm(wrists[:, None] - cup_pts[None], axis=-1).min() > 0.01
