@@ -4,8 +4,7 @@ known answers: a voxelised cup on a table, a book near it or far away, a seat un
 import numpy as np
 import pytest
 
-from motiongen.sampling.interactions import (hand_targets, reach_targets, seat_height,
-                                             seat_shift)
+from motiongen.sampling.interactions import hand_targets, seat_height, seat_shift
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.skeleton import FOOT_JOINTS, HAND_JOINTS, PELVIS
 from tests.helpers import REST
@@ -13,7 +12,7 @@ from tests.helpers import REST
 VOX = 0.01            # object voxel size (m)
 R_CUP = 0.04          # cup radius (m)
 H_CUP = 0.10          # cup height (m)
-PALM = 0.03           # reach_targets' default wrist-to-skin distance
+PALM = 0.03           # hand_targets' default wrist-to-skin distance
 TABLE = np.array([1.0, 0.75, 0.5])      # where the cup's base centre stands (table top)
 NAMES = ["walk", "pick up"]
 T, RUN = 40, (10, 30)                    # frames; the run labelled "pick up"

@@ -22,6 +22,7 @@ from motiongen.commands import run_script
 from motiongen.loading.checkpoint import remove_orphan_temps
 from motiongen.training import trainer
 from tests.helpers import REST, make_dataset, write_fake_release
+from tests.run_inprocess import run_command
 from tests.test_train_cli import TINY
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,12 +33,10 @@ def dataset(tmp_path_factory):
     return make_dataset(tmp_path_factory.mktemp("ds") / "ds", scenes=(1, 2, 71, 91), seqs_per_scene=2, T=150)
 
 
-def run_here(capsys, *args):
-    """`motiongen ARGS` in this process: (exit code, stdout, stderr)."""
-    with pytest.raises(SystemExit) as e:
-        motiongen(list(args))
-    out = capsys.readouterr()
-    return e.value.code, out.out, out.err
+def run_here(capsys, command, *args):
+    """`motiongen COMMAND ARGS` in this process: (exit code, stdout, stderr)."""
+    r = run_command(command, list(args), capsys)
+    return r.returncode, r.stdout, r.stderr
 
 
 def _train_args(dataset, run_dir, steps, **over):

@@ -114,19 +114,16 @@ def test_two_process_ddp(dataset, tmp_path, per_rank):
 
 
 def test_user_errors_exit_2(dataset, tmp_path, capsys):
-    def _run(args):
-        return run_command("train", args, capsys)
-
-    r = _run(_args(dataset, tmp_path, 4, **{"train.resume": str(tmp_path / "missing.pt")}))
+    r = run_command("train", _args(dataset, tmp_path, 4, **{"train.resume": str(tmp_path / "missing.pt")}), capsys)
     assert r.returncode == 2 and "missing.pt" in r.stderr and "Traceback" not in r.stderr
-    r = _run(_args(tmp_path / "no_such_dataset", tmp_path, 4))
+    r = run_command("train", _args(tmp_path / "no_such_dataset", tmp_path, 4), capsys)
     assert r.returncode == 2 and "no_such_dataset" in r.stderr and "Traceback" not in r.stderr
-    r = _run(_args(dataset, tmp_path, 4, **{"train.batch_size": 100000}))
+    r = run_command("train", _args(dataset, tmp_path, 4, **{"train.batch_size": 100000}), capsys)
     assert r.returncode == 2 and "batch_size" in r.stderr
-    r = _run(_args(dataset, tmp_path, 4, **{"model.temporal_basis": 8, "diffusion": "paper"}))   # eps prediction
+    r = run_command("train", _args(dataset, tmp_path, 4, **{"model.temporal_basis": 8, "diffusion": "paper"}), capsys)   # eps prediction
     assert r.returncode == 2 and "temporal_basis" in r.stderr and "Traceback" not in r.stderr
     # Out-of-range keys (tests/test_config.py has the whole table): one line before any data is read.
-    r = _run(_args(dataset, tmp_path / "ema", 4, **{"train.ema_decay": 1.5}))
+    r = run_command("train", _args(dataset, tmp_path / "ema", 4, **{"train.ema_decay": 1.5}), capsys)
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         "error: train.ema_decay: expected a number >= 0 and < 1, got 1.5"], r.stderr
     assert not (tmp_path / "ema" / "checkpoints").exists()
@@ -135,21 +132,18 @@ def test_user_errors_exit_2(dataset, tmp_path, capsys):
 def test_resume_from_another_model_or_diverged_weights_is_one_line(dataset, tmp_path, capsys):
     """Resuming with another width (97 lines of load_state_dict before) or from a checkpoint
     whose weights are NaN: one line naming the file."""
-    def _run(args):
-        return run_command("train", args, capsys)
-
-    r = _run(_args(dataset, tmp_path / "a", 3))
+    r = run_command("train", _args(dataset, tmp_path / "a", 3), capsys)
     assert r.returncode == 0, r.stderr[-2000:]
     last = tmp_path / "a" / "checkpoints" / "last.pt"
     wider = [a.replace("model.width=32", "model.width=64") for a in _args(dataset, tmp_path / "b", 6)]
-    r = _run([*wider, f"train.resume={last}"])
+    r = run_command("train", [*wider, f"train.resume={last}"], capsys)
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith(f"error: {last} [model]: weights of another "
                                                                          "architecture than this run's config"), r.stderr
     ck = _weights(last)
     next(iter(ck["ema"].values())).fill_(float("nan"))
     torch.save(ck, tmp_path / "nan.pt")
-    r = _run(_args(dataset, tmp_path / "c", 6, **{"train.resume": tmp_path / "nan.pt"}))
+    r = run_command("train", _args(dataset, tmp_path / "c", 6, **{"train.resume": tmp_path / "nan.pt"}), capsys)
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and "[ema]: non-finite weights" in lines[0], r.stderr
 

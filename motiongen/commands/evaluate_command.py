@@ -17,15 +17,15 @@ from motiongen.body.model import load_body_model
 from motiongen.commands.hydra_app import hydra_command
 from motiongen.data.format import MotionDataset
 from motiongen.errors import ConfigError
-from motiongen.eval.evaluate_config import EvaluateConfig, dataset_config, protocol_config
+from motiongen.eval.evaluate_config import EvaluateConfig, dataset_config, mocap_paths, protocol_config
 from motiongen.eval.mocap import mocap_body_metrics
 from motiongen.eval.pairs import SETTINGS
 from motiongen.eval.protocol import evaluate
 from motiongen.eval.report import build_report, log_tensorboard, markdown, write_report
-from motiongen.importers.sources import open_dataset
 from motiongen.eval.seeds import aggregate_reports
+from motiongen.importers.sources import open_dataset
 from motiongen.loading.build import LoadedModel
-from motiongen.loading.keys import load_checkpoint_model
+from motiongen.loading.keys import checkpoint_paths, load_checkpoint_model
 from motiongen.output_lock import OutputLock, claim_run_dir, refuse_output_over_input
 from motiongen.sampling.settings import SamplerSettings
 from motiongen.staging import record_outputs
@@ -55,7 +55,7 @@ def evaluate_and_write(cfg: EvaluateConfig, out: Path, ckpts: list[Path], settin
     """The evaluation of every checkpoint (one report; over several, the mean and spread of each
     figure) in `out`, replacing the report a previous run wrote there. Every checkpoint is
     loaded and checked before the first is evaluated."""
-    mocap = [cfg.mocap] if isinstance(cfg.mocap, str) else list(cfg.mocap or [])
+    mocap = mocap_paths(cfg.mocap)
     runs = [prepare(dataclasses.replace(cfg, ckpt=str(c)), c, out, mocap) for c in ckpts]
     roots = {str(r.ds.root) for r in runs}
     if len(roots) > 1:
@@ -108,17 +108,6 @@ def evaluate_one(p: Prepared, settings: list[str], mocap_row: dict | None):
     report = build_report(ev, meta)
     report["meta"].pop("mocap_row", None)
     return report, ev
-
-
-def checkpoint_paths(value) -> list[Path]:
-    """The `ckpt` key: one checkpoint, or a list of them (one recipe trained with several seeds)."""
-    items = [value] if isinstance(value, (str, Path)) or value is None else list(value)
-    if not items or any(v in (None, "") for v in items):
-        raise ConfigError("ckpt=PATH is required (a checkpoint written by train.py; ckpt=[a,b,c] for several seeds)")
-    paths = [Path(str(v)) for v in items]
-    if len(set(map(str, paths))) != len(paths):
-        raise ConfigError(f"ckpt: a checkpoint is listed twice ({', '.join(map(str, paths))})")
-    return paths
 
 
 def chosen_settings(value) -> list[str]:

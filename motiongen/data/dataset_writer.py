@@ -44,8 +44,9 @@ class DatasetWriter:
             # overwrite deletes `root`: never do that to something that is not ours
             raise DataError(self.root, None, "refusing to overwrite: not a dataset directory (no meta.json) "
                                              "and not empty")
-        if self.root.exists() and OutputLock(self.root, "dataset").holder() is not None:
-            raise OutputLock(self.root, "dataset").busy_error()   # annotate-contact is writing labels into it
+        lock = OutputLock(self.root, "dataset")
+        if self.root.exists() and lock.holder() is not None:
+            raise lock.busy_error()                       # annotate-contact is writing labels into it
         self.tmp = self.root.with_name(self.root.name + f".partial-{os.getpid()}")
         if self.tmp.exists():
             shutil.rmtree(self.tmp)

@@ -30,6 +30,17 @@ def checkpoint_path(keys: CheckpointKeys) -> Path:
     return Path(keys.ckpt)
 
 
+def checkpoint_paths(value) -> list[Path]:
+    """The `ckpt` key: one checkpoint, or a list of them (one recipe trained with several seeds)."""
+    items = [value] if isinstance(value, (str, Path)) or value is None else list(value)
+    if not items or any(v in (None, "") for v in items):
+        raise ConfigError("ckpt=PATH is required (a checkpoint written by train.py; ckpt=[a,b,c] for several seeds)")
+    paths = [Path(str(v)) for v in items]
+    if len(set(map(str, paths))) != len(paths):
+        raise ConfigError(f"ckpt: a checkpoint is listed twice ({', '.join(map(str, paths))})")
+    return paths
+
+
 def load_checkpoint_model(keys: CheckpointKeys) -> LoadedModel:
     """The model of `keys.ckpt` on `keys.device` at `keys.precision`, with torch's CPU threads
     set first when `keys.threads` asks for a number."""

@@ -24,7 +24,7 @@ _NEAREST = 16
 
 
 class ObjectSurface(NamedTuple):
-    """One placed object's geometry as `reach_targets` needs it, in world coordinates."""
+    """One placed object's geometry as `wrist_candidates` needs it, in world coordinates."""
 
     skin: np.ndarray       # (M, 3) points on the object's surface: a surface voxel's face centre, edge or corner
     normals: np.ndarray    # (M, 3) unit outward normal at each skin point
@@ -98,22 +98,17 @@ def wrist_candidates(surfaces: list[ObjectSurface], palm: float, scene=None) -> 
     return cand
 
 
-def reach_targets(joints: np.ndarray, labels: np.ndarray, action: int, hands, points: list,
-                  scene=None, palm: float = 0.03, ramp: int = 8, max_dist: float = 0.5):
+def reach_targets(joints: np.ndarray, labels: np.ndarray, action: int, hands, cand: np.ndarray,
+                  ramp: int = 8, max_dist: float = 0.5):
     """Where a hand must be for each run of frames labelled `action` (a hand interaction):
     joints (T, J, 3) the motion so far, labels (T,) action index per frame, hands: joint indices
-    to choose from (wrists), points: per object its ObjectSurface (`object_surfaces`), scene:
-    the OccupancyGrid the hand must stay out of (or None).
-    Per run: the hand closest to an object, and the wrist position `palm` metres out from an
-    object's surface (the wrist joint sits that far from the palm's skin), out of every object and
-    the scene, that is nearest that hand. Weights ramp in and out over `ramp` frames so the reach
-    is a movement, not a jump. A hand farther than `max_dist` from every candidate is left alone:
-    pulling it there would drag the whole body. Returns (frames, joints, points, weights) or None
-    when nothing is in reach, or no wrist position is free."""
-    surfaces = [s for s in points if len(s.centres)]
-    if not surfaces:
-        return None
-    cand = wrist_candidates(surfaces, palm, scene)                                    # (M, 3)
+    to choose from (wrists), cand (M, 3): where a wrist may be (`wrist_candidates`: `palm`
+    metres out from an object's surface, out of every object and the scene).
+    Per run: the hand closest to a candidate, and that candidate. Weights ramp in and out over
+    `ramp` frames so the reach is a movement, not a jump. A hand farther than `max_dist` from
+    every candidate is left alone: pulling it there would drag the whole body. Returns
+    (frames, joints, points, weights) or None when nothing is in reach, or no wrist position
+    is free."""
     if not len(cand):
         return None
     frames, js, ps, ws = [], [], [], []
@@ -137,15 +132,20 @@ def reach_targets(joints: np.ndarray, labels: np.ndarray, action: int, hands, po
     return np.concatenate(frames), np.concatenate(js), np.concatenate(ps), np.concatenate(ws)
 
 
-def hand_targets(joints: np.ndarray, labels: np.ndarray, names, hand_actions, objects, scene=None) -> list | None:
-    """Per sample, the hand targets of the frames labelled with a hand action (None: none)."""
+def hand_targets(joints: np.ndarray, labels: np.ndarray, names, hand_actions, objects, scene=None,
+                 palm: float = 0.03) -> list | None:
+    """Per sample, the hand targets of the frames labelled with a hand action (None: none): a
+    wrist `palm` metres out from an object's surface (the wrist joint sits that far from the
+    palm's skin), out of every object and of `scene`."""
     acts = [names.index(a) for a in hand_actions if a in names]
     if not acts or not objects:
         return None
-    surfaces = object_surfaces(objects)
+    surfaces = [s for s in object_surfaces(objects) if len(s.centres)]
+    # The same for every sample and action: computed once (a k-d tree over every object's voxels).
+    cand = wrist_candidates(surfaces, palm, scene) if surfaces else np.zeros((0, 3))       # (M, 3)
     out = []
     for s in range(joints.shape[0]):
-        parts = [r for a in acts if (r := reach_targets(joints[s], labels[s], a, HAND_JOINTS, surfaces, scene)) is not None]
+        parts = [r for a in acts if (r := reach_targets(joints[s], labels[s], a, HAND_JOINTS, cand)) is not None]
         out.append(merge_targets(*parts))
     return out
 
