@@ -118,7 +118,8 @@ class GaussianDiffusion:
     def training_losses(self, model, x0: Tensor, t: Tensor, cond, known: Tensor | None = None,
                         known_mask: Tensor | None = None, noise: Tensor | None = None,
                         generator: torch.Generator | None = None,
-                        channel_weights: Tensor | None = None, loss_mask: Tensor | None = None) -> dict[str, Tensor]:
+                        channel_weights: Tensor | None = None, loss_mask: Tensor | None = None,
+                        window_terms=None) -> dict[str, Tensor]:
         """Loss on the configured target over the free (not known) entries, or over `loss_mask`
         (B, L, D) bool when given (e.g. free entries plus goal entries the model must predict).
 
@@ -128,6 +129,8 @@ class GaussianDiffusion:
         x0 (B, L, D) clean; t (B,) long; known_mask (B, L, D) bool marks entries the caller
         pins. Those entries of x_t hold the clean values (``known``, default x0) — exactly what
         the samplers write there — so training and sampling show the model the same input.
+        window_terms: optional callable (window, x0, free) -> {name: (weight, term)}, losses on
+        the window as sampling assembles it (e.g. `training.body_losses.BodyLosses`).
         Returns ``loss`` (to backprop) plus named terms for logging.
         """
         if noise is None:
@@ -157,11 +160,14 @@ class GaussianDiffusion:
         diffs = [(order, key, weight) for order, key, weight in ((1, "velocity", self.cfg.velocity_weight),
                                                                  (2, "acceleration", self.cfg.acceleration_weight))
                  if weight > 0]
-        if diffs:
+        if diffs or window_terms is not None:
             # the window as sampling assembles it: x̂0 on free entries, the pinned values (x_t holds them) elsewhere
             window = torch.where(free > 0, self.predict_x0_eps(out, x_t, t)[0], x_t)         # (B, L, D)
-            for order, key, weight in diffs:
-                term = self._difference_loss(window, x0, free, channel_weights, order)
+            weighted = [(key, weight, self._difference_loss(window, x0, free, channel_weights, order))
+                        for order, key, weight in diffs]
+            if window_terms is not None:
+                weighted += [(key, weight, term) for key, (weight, term) in window_terms(window, x0, free).items()]
+            for key, weight, term in weighted:
                 terms["loss"] = terms["loss"] + weight * term
                 terms[key] = term.detach()
         return terms

@@ -27,6 +27,10 @@ class TrainConfig:
     # emphasis on the root trajectory, 3 of J*3 channels. Plain by default: a heavier weight did
     # not improve goal following on the demo, the input path of pinned entries did (docs/models.md).
     pelvis_loss_weight: float = 1.0
+    # Geometry on the network's own prediction (training/body_losses.py), metres: bone lengths
+    # against the clean window's, and the speed (m/s) of feet the data flags planted. 0 = off.
+    w_bone_length: float = 0.0
+    w_planted_feet: float = 0.0
     log_every: int = 50
     val_every: int = 500             # 0 disables validation
     val_batches: int = 4
@@ -50,7 +54,7 @@ class TrainConfig:
         for key in ("warmup_steps", "val_every", "figure_every", "keep_last", "num_workers", "threads"):
             r(f"train.{key}", getattr(self, key), 0, integer=True)
         r("train.lr", self.lr, 0, lo_open=True)   # no ceiling: lr=1e20 is how a diverging run is reproduced
-        for key in ("weight_decay", "grad_clip", "pelvis_loss_weight"):
+        for key in ("weight_decay", "grad_clip", "pelvis_loss_weight", "w_bone_length", "w_planted_feet"):
             r(f"train.{key}", getattr(self, key), 0)
         for key in ("min_lr_ratio", "cond_drop_scene", "cond_drop_actions"):
             r(f"train.{key}", getattr(self, key), 0, 1)

@@ -28,6 +28,7 @@ from motiongen.errors import MotiongenError
 from motiongen.loading.build import batch_condition, goal_predicted, known_mask_for_batch, loss_channel_weights
 from motiongen.loading.checkpoint import remove_orphan_temps, save_checkpoint
 from motiongen.training import distributed as dd
+from motiongen.training.body_losses import BodyLosses
 from motiongen.training.figures import log_sample_figure
 from motiongen.training.setup import Run, rng_state, set_up
 from motiongen.training.validate import validation_loss
@@ -53,6 +54,7 @@ class _Loop:
     predict_goal: bool
     bar: tqdm | None
     nonfinite: torch.Tensor                 # () bool: a non-finite loss or gradient so far
+    body: BodyLosses | None                 # geometry on the prediction (train.w_bone_length, w_planted_feet)
     sums: dict[str, torch.Tensor] = field(default_factory=dict)   # loss terms since the last log
     t_log: float = field(default_factory=time.perf_counter)
     n_log: int = 0                          # samples since the last log, all ranks
@@ -102,7 +104,16 @@ def _start_loop(run: Run) -> _Loop:
         # A bar only on a terminal: redirected, its redraws would pile up in one line of the file.
         bar = tqdm(total=tc.max_steps, initial=run.step, desc="train", dynamic_ncols=True)
     nonfinite = torch.zeros((), dtype=torch.bool, device=run.device)
-    return _Loop(batches, autocast, weights, predict_goal, bar, nonfinite)
+    return _Loop(batches, autocast, weights, predict_goal, bar, nonfinite, body_losses(run))
+
+
+def body_losses(run: Run) -> BodyLosses | None:
+    """The geometry terms the config asks for, or None (both weights 0)."""
+    tc, ws = run.tc, run.train_set
+    if tc.w_bone_length <= 0 and tc.w_planted_feet <= 0:
+        return None
+    return BodyLosses(ws.layout, ws.stats, run.ds.joint_set.parents, run.ds.fps / ws.cfg.stride,
+                      tc.w_bone_length, tc.w_planted_feet)
 
 
 def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
@@ -118,7 +129,8 @@ def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
     with loop.autocast:
         losses = run.diffusion.training_losses(run.net, x0, t, cond, known=x0, known_mask=known_mask, noise=noise,
                                                channel_weights=loop.weights,
-                                               loss_mask=loss_mask(known_mask, loop.predict_goal))
+                                               loss_mask=loss_mask(known_mask, loop.predict_goal),
+                                               window_terms=loop.body)
     loss = losses["loss"]
     run.opt.zero_grad(set_to_none=True)
     loss.backward()

@@ -1,0 +1,68 @@
+"""Training-time geometry on the network's prediction (motiongen/training/body_losses.py):
+closed forms on a hand-made window, and the terms reaching the loss and its gradient."""
+
+import numpy as np
+import pytest
+import torch
+
+from motiongen.data.representation import Layout
+from motiongen.data.windows import NormStats
+from motiongen.diffusion import DiffusionConfig, GaussianDiffusion
+from motiongen.errors import ConfigError
+from motiongen.skeleton import BODY, BODY_PARENTS, FOOT_JOINTS, PELVIS
+from motiongen.training.body_losses import BodyLosses
+from tests.helpers import REST
+
+L, FPS = 8, 10.0
+LAYOUT = Layout(22, "absolute", tuple(FOOT_JOINTS))
+STATS = NormStats(np.full(LAYOUT.channels, 0.1, np.float32), np.full(LAYOUT.channels, 2.0, np.float32))
+CHILD = [j for j, p in enumerate(BODY_PARENTS) if p >= 0]
+
+
+def window(joints, planted):
+    """joints (L, 22, 3), planted (L, 4) bool -> the normalised window (1, L, D)."""
+    x = LAYOUT.encode(torch.as_tensor(joints, dtype=torch.float64), torch.as_tensor(planted))
+    return STATS.normalize(x)[None]
+
+
+def losses(w_bone=1.0, w_foot=1.0):
+    return BodyLosses(LAYOUT, STATS, BODY.parents, FPS, w_bone, w_foot)
+
+
+def test_closed_forms():
+    rest = np.repeat(REST[None].astype(np.float64), L, 0)                             # (L, 22, 3)
+    planted = np.ones((L, 4), bool)
+    x0 = window(rest, planted)
+    free = torch.ones_like(x0)
+    t = losses()(x0, x0, free)
+    assert t["bone_length"][1].item() == pytest.approx(0, abs=1e-9) and t["planted_feet"][1].item() == pytest.approx(0, abs=1e-9)
+    # every bone 10 % longer: the mean error is 10 % of the mean bone length
+    big = rest[:, PELVIS:PELVIS + 1] + 1.1 * (rest - rest[:, PELVIS:PELVIS + 1])
+    bones = np.linalg.norm(REST[CHILD] - REST[[BODY_PARENTS[j] for j in CHILD]], axis=-1)
+    assert losses()(window(big, planted), x0, free)["bone_length"][1].item() == pytest.approx(0.1 * bones.mean(), rel=1e-6)
+    # the whole body sliding at 0.5 m/s: the planted feet's speed is 0.5 m/s, and 0 where not planted
+    slide = rest + (0.5 / FPS) * np.arange(L)[:, None, None] * np.array([1.0, 0, 0])
+    moved = window(slide, planted)
+    assert losses()(moved, x0, free)["planted_feet"][1].item() == pytest.approx(0.5, rel=1e-6)
+    assert losses()(moved, window(rest, ~planted), free)["planted_feet"][1].item() == pytest.approx(0, abs=1e-9)
+    # only frames with a free entry count: all pinned, nothing to learn
+    assert losses()(window(big, planted), x0, torch.zeros_like(x0))["bone_length"][1].item() == 0
+
+
+def test_terms_reach_the_loss_and_its_gradient():
+    diffusion = GaussianDiffusion(DiffusionConfig(prediction="x0"))
+    net = torch.nn.Linear(LAYOUT.channels, LAYOUT.channels).double()
+    model = lambda x_t, t, cond, known_mask=None: net(x_t)                            # noqa: E731
+    x0 = window(np.repeat(REST[None].astype(np.float64), L, 0), np.ones((L, 4), bool)).repeat(2, 1, 1)
+    t, noise = torch.tensor([3, 50]), torch.randn(x0.shape, generator=torch.Generator().manual_seed(0), dtype=x0.dtype)
+    plain = diffusion.training_losses(model, x0, t, None, noise=noise)
+    body = diffusion.training_losses(model, x0, t, None, noise=noise, window_terms=losses(2.0, 0.5))
+    extra = 2.0 * body["bone_length"] + 0.5 * body["planted_feet"]
+    assert body["bone_length"] > 0 and body["loss"].item() == pytest.approx((plain["loss"] + extra).item())
+    body["loss"].backward()
+    assert net.weight.grad.abs().sum() > 0
+
+
+def test_planted_feet_needs_stance_channels():
+    with pytest.raises(ConfigError, match="window.contact_joints"):
+        BodyLosses(Layout(22), NormStats(np.zeros(66, np.float32), np.ones(66, np.float32)), BODY.parents, FPS, 1.0, 1.0)
