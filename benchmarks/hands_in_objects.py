@@ -1,79 +1,60 @@
-"""Hands in objects: the share of pick-up frames with a wrist joint inside a placed object (not a
-timed test). The evaluation's own figures cannot see it: its hand-object distance is unsigned and
-its contact rate subtracts the same skin offset the hand reach adds.
+"""Hands in objects, on the body mesh (not a timed test): for the `evaluate` protocol's dynamic
+setting, the share of pick-up frames with any hand vertex inside the picked-up object, the share
+of interactions whose hand touches it, the per-frame contact and the closest signed hand-object
+distance (`motiongen.eval.mesh_scores`), in one run: for the output with the hand reach as it
+is, with its parts taken away one at a time (a wrist-only reach: the hand beyond the wrist
+ignored, `interactions.HAND_SPAN = ()`; no hands moved out of objects on the mesh after the
+solve, `hand_clearance.ROUNDS = 0`), for the network's own joints and for the data.
 
     python benchmarks/hands_in_objects.py ckpt=PATH [split=val] [k=2] [pairs=5] [steps=10]
-
-Runs the `evaluate` protocol's dynamic setting (seed 0, DDIM) on every scene of `split` and prints,
-for the output motions and the network's own joints: pick-up frames, those with either wrist
-joint inside an object's occupied voxels, and the nearest wrist's distance to the object's voxel
-centres (median, 10th percentile), beside the report's hand-object distance and contact rate.
 """
 
 from __future__ import annotations
 
 import warnings
 
-import numpy as np
-
-import motiongen.eval.protocol as protocol
+import motiongen.sampling.hand_clearance as hand_clearance
+import motiongen.sampling.interactions as interactions
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.eval.pairs import ProtocolConfig
+from motiongen.eval.protocol import evaluate
 from motiongen.importers.sources import DataConfig, open_dataset
 from motiongen.loading.build import load_model
 from motiongen.sampling import SamplerSettings
-from motiongen.skeleton import HAND_JOINTS
 
 SPEC = {"ckpt": (str, None), "split": (str, "val"), "k": (int, 2), "pairs": (int, 5), "steps": (int, 10)}
+KEYS = (("hand_inside_frames", "hand inside"), ("touched", "touched"), ("mesh_contact_rate", "contact"),
+        ("hand_object_sdist_m", "signed dist [m]"), ("completed", "completed"))
 
 
-def wrists_in_objects(joints: np.ndarray, objects) -> tuple[np.ndarray, np.ndarray]:
-    """joints (F, J, 3), objects [(OccupancyGrid, pose (4, 4))] -> (F,) either wrist inside an
-    object, (F,) the nearest wrist's distance (m) to an object voxel centre."""
-    w = joints[:, list(HAND_JOINTS)]                                                   # (F, 2, 3)
-    inside, near = np.zeros(len(w), bool), np.full(len(w), np.inf)
-    for grid, pose in objects:
-        pose = np.asarray(pose, np.float64)
-        local = (w.reshape(-1, 3) - pose[:3, 3]) @ pose[:3, :3]                        # R^T (p - t): (2F, 3)
-        inside |= grid.occupied(local, outside=False).reshape(len(w), -1).any(1)
-        centres = grid.origin + (np.argwhere(np.asarray(grid.dense())) + 0.5) * grid.voxel_size   # (N, 3)
-        d = np.linalg.norm(local[:, None] - centres[None], axis=-1).min(1)             # (2F,)
-        near = np.minimum(near, d.reshape(len(w), -1).min(1))
-    return inside, near
+def line(label: str, row: dict) -> str:
+    return f"{label:34s}" + "".join(f"{row.get(k, float('nan')) if row.get(k) is not None else float('nan'):>16.3f}"
+                                    for k, _ in KEYS)
 
 
 def run(argv: list[str]) -> None:
-    opts = parse_key_values(argv, SPEC, required=("ckpt",), usage=__doc__.splitlines()[3].strip())
-    captured = []
-    generate = protocol.generate
-
-    def keep(*a, **kw):                        # the protocol keeps scores, not motions: keep them here
-        motion = generate(*a, **kw)
-        captured.append((motion, kw.get("objects") or []))
-        return motion
-
-    protocol.generate = keep
+    opts = parse_key_values(argv, SPEC, required=("ckpt",), usage=__doc__.splitlines()[7].strip())
     loaded = load_model(opts["ckpt"])
     ds = open_dataset(DataConfig(), verbose=False)
     scenes = [s for s in ds.splits[opts["split"]] if s in ds.scenes]
+    cfg = ProtocolConfig(k=opts["k"], pairs=opts["pairs"], ablation_pairs=0)
+    sampler = SamplerSettings("ddim", opts["steps"])
     warnings.simplefilter("ignore")
-    ev = protocol.evaluate(loaded, ds, scenes, ProtocolConfig(k=opts["k"], pairs=opts["pairs"]), ["dynamic"],
-                           SamplerSettings("ddim", opts["steps"]), progress=False)
-    for label, field in (("output", "joints"), ("network's own joints", "joints_raw")):
-        inside, near = [], []
-        for motion, objects in captured:
-            pick = motion.action_names.index("pick up")
-            for s in range(motion.joints.shape[0]):
-                frames = np.flatnonzero(motion.actions[s] == pick)
-                if len(frames) and objects:
-                    i, n = wrists_in_objects(getattr(motion, field)[s][frames].astype(np.float64), objects)
-                    inside.append(i), near.append(n)
-        i, n = np.concatenate(inside), np.concatenate(near)
-        print(f"{label}: {len(i)} pick-up frames, a wrist inside an object in {i.sum()} ({100 * i.mean():.1f} %); "
-              f"nearest wrist to an object voxel centre: median {np.median(n):.3f} m, 10th pct {np.percentile(n, 10):.3f} m")
-    row = ev.model.get("dynamic", {})
-    print(f"report: hand-object distance {row.get('object_dist_m'):.3f} m, contact rate {row.get('contact_rate'):.3f} "
-          f"({opts['split']} scenes {scenes[0]}-{scenes[-1]}, k={opts['k']}, {opts['pairs']} pairs per scene)")
+    rows = {}
+    span, rounds = interactions.HAND_SPAN, hand_clearance.ROUNDS
+    for label, hand, settle in (("output, wrist-only reach", (), 0), ("output, no mesh check", span, 0),
+                                ("output (hand reach as is)", span, rounds)):
+        interactions.HAND_SPAN, hand_clearance.ROUNDS = hand, settle
+        ev = evaluate(loaded, ds, scenes, cfg, ["dynamic"], sampler, progress=False)
+        rows[label] = ev.model["dynamic"]
+    interactions.HAND_SPAN, hand_clearance.ROUNDS = span, rounds
+    rows["network's own joints"] = ev.model_raw["dynamic"]
+    rows["data"] = ev.reference["dynamic"]
+    print(f"{opts['ckpt']}: {opts['split']} scenes {scenes[0]}-{scenes[-1]}, dynamic setting, k={opts['k']}, "
+          f"{opts['pairs']} pairs per scene, DDIM-{opts['steps']}")
+    print(f"{'':34s}" + "".join(f"{name:>16s}" for _, name in KEYS))
+    for label, row in rows.items():
+        print(line(label, row))
 
 
 if __name__ == "__main__":

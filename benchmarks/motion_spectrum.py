@@ -67,7 +67,7 @@ def main(argv) -> None:
 
     from motiongen.importers.sources import open_dataset
     from motiongen.eval.pairs import ProtocolConfig
-    from motiongen.eval.protocol import evaluate, pskl_sets
+    from motiongen.eval.protocol import evaluate, pskl_equal, reference_halves
     from motiongen.eval.evaluate_config import dataset_config, loop_overrides
     from motiongen.sampling import SamplerSettings
     from motiongen.sampling.assemble import resample
@@ -107,8 +107,10 @@ def main(argv) -> None:
               f"{np.nanmean([grounded_slide(m, fps) for m in ms]):7.3f}")
     print(f"{'share of power per band':30s}{'PSKL(m,data) (data,m)':>26s}{head}")
     rms = {}
+    # Each row against one half of the data at the half's size; the data row is the other half.
+    other, half = reference_halves(refs, n)
     for name, motions in rows.items():
-        kab, kba = pskl_sets(motions, refs, fps, n)
+        kab, kba, _ = pskl_equal(other if name == "data" else motions, half, fps, n)
         share, rms[name] = band_power(motions, fps, n)
         print(f"{name:30s}{kab:7.3f} {kba:6.3f} ({kab / floor:4.1f}x {kba / floor:4.1f}x)"
               + "".join(f"{x:10.3f}" for x in share))

@@ -25,8 +25,11 @@ def window(joints, planted):
     return STATS.normalize(x)[None]
 
 
-def losses(w_bone=1.0, w_foot=1.0):
-    return BodyLosses(LAYOUT, STATS, BODY.parents, FPS, w_bone, w_foot)
+def losses(w_bone=1.0, w_foot=1.0, noise_weights=None):
+    return BodyLosses(LAYOUT, STATS, BODY.parents, FPS, w_bone, w_foot, noise_weights)
+
+
+T0 = torch.tensor([0])                                                                  # one window, step 0
 
 
 def test_closed_forms():
@@ -34,19 +37,19 @@ def test_closed_forms():
     planted = np.ones((L, 4), bool)
     x0 = window(rest, planted)
     free = torch.ones_like(x0)
-    t = losses()(x0, x0, free)
+    t = losses()(x0, x0, free, T0)
     assert t["bone_length"][1].item() == pytest.approx(0, abs=1e-9) and t["planted_feet"][1].item() == pytest.approx(0, abs=1e-9)
     # every bone 10 % longer: the mean error is 10 % of the mean bone length
     big = rest[:, PELVIS:PELVIS + 1] + 1.1 * (rest - rest[:, PELVIS:PELVIS + 1])
     bones = np.linalg.norm(REST[CHILD] - REST[[BODY_PARENTS[j] for j in CHILD]], axis=-1)
-    assert losses()(window(big, planted), x0, free)["bone_length"][1].item() == pytest.approx(0.1 * bones.mean(), rel=1e-6)
+    assert losses()(window(big, planted), x0, free, T0)["bone_length"][1].item() == pytest.approx(0.1 * bones.mean(), rel=1e-6)
     # the whole body sliding at 0.5 m/s: the planted feet's speed is 0.5 m/s, and 0 where not planted
     slide = rest + (0.5 / FPS) * np.arange(L)[:, None, None] * np.array([1.0, 0, 0])
     moved = window(slide, planted)
-    assert losses()(moved, x0, free)["planted_feet"][1].item() == pytest.approx(0.5, rel=1e-6)
-    assert losses()(moved, window(rest, ~planted), free)["planted_feet"][1].item() == pytest.approx(0, abs=1e-9)
+    assert losses()(moved, x0, free, T0)["planted_feet"][1].item() == pytest.approx(0.5, rel=1e-6)
+    assert losses()(moved, window(rest, ~planted), free, T0)["planted_feet"][1].item() == pytest.approx(0, abs=1e-9)
     # only frames with a free entry count: all pinned, nothing to learn
-    assert losses()(window(big, planted), x0, torch.zeros_like(x0))["bone_length"][1].item() == 0
+    assert losses()(window(big, planted), x0, torch.zeros_like(x0), T0)["bone_length"][1].item() == 0
 
 
 def test_terms_reach_the_loss_and_its_gradient():
@@ -61,6 +64,22 @@ def test_terms_reach_the_loss_and_its_gradient():
     assert body["bone_length"] > 0 and body["loss"].item() == pytest.approx((plain["loss"] + extra).item())
     body["loss"].backward()
     assert net.weight.grad.abs().sum() > 0
+
+
+def test_signal_weighting_counts_each_window_by_its_share_of_signal():
+    """Two windows, one with every bone 10 % long, one exact: uniform weighting gives the mean
+    error over both; by signal, the noisier window counts ᾱ_t as much."""
+    rest = np.repeat(REST[None].astype(np.float64), L, 0)
+    planted = np.ones((L, 4), bool)
+    big = rest[:, PELVIS:PELVIS + 1] + 1.1 * (rest - rest[:, PELVIS:PELVIS + 1])
+    pred = torch.cat([window(big, planted), window(rest, planted)])                    # (2, L, D)
+    x0 = torch.cat([window(rest, planted)] * 2)
+    free, t = torch.ones_like(x0), torch.tensor([1, 0])
+    err = 0.1 * np.linalg.norm(REST[CHILD] - REST[[BODY_PARENTS[j] for j in CHILD]], axis=-1).mean()
+    assert losses()(pred, x0, free, t)["bone_length"][1].item() == pytest.approx(err / 2, rel=1e-6)
+    w = torch.tensor([1.0, 0.25], dtype=torch.float64)                                 # ᾱ of steps 0, 1
+    assert losses(noise_weights=w)(pred, x0, free, t)["bone_length"][1].item() == pytest.approx(
+        0.25 * err / 1.25, rel=1e-6)
 
 
 def test_planted_feet_needs_stance_channels():

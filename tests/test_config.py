@@ -76,7 +76,8 @@ def test_app_keys_come_from_the_dataclasses():
     ev = OmegaConf.to_object(_compose("evaluate", ["ckpt=x.pt", "data=small", "loop.smooth=0"]))
     assert isinstance(ev, EvaluateConfig) and ev.data.size == "small" and ev.steps == 10
     pc = protocol_config(ev)
-    assert asdict(pc) == {**asdict(ProtocolConfig()), "static_actions": ["sit", "lie down"], "loop": {"smooth": 0.0}}
+    assert asdict(pc) == {**asdict(ProtocolConfig()), "static_actions": ["sit", "lie down"], "loop": {"smooth": 0.0},
+                          "ablate": list(ProtocolConfig().ablate)}
 
 
 def test_window_group_is_the_window_config():
@@ -112,6 +113,7 @@ OUT_OF_RANGE = [
     ("train", ["train.ema_decay=1.5"], "train.ema_decay: expected a number >= 0 and < 1, got 1.5"),
     ("train", ["train.ema_decay=1"], "train.ema_decay: expected a number >= 0 and < 1"),
     ("train", ["train.lr_schedule=cosin"], "train.lr_schedule: expected one of constant, cosine, got 'cosin'"),
+    ("train", ["train.geometry_weighting=high"], "train.geometry_weighting: expected one of uniform, signal, got 'high'"),
     ("train", ["train.batch_size=0"], "train.batch_size: expected an integer >= 1, got 0"),
     ("train", ["train.log_every=0"], "train.log_every: expected an integer >= 1"),
     ("train", ["train.lr=-1"], "train.lr: expected a number > 0, got -1.0"),

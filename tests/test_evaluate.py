@@ -103,12 +103,13 @@ def ckpt(tmp_path_factory):
 
 
 CMU = "/usr/share/assimp/models/BVH"                            # Debian's assimp-testmodels (scripts/test.sh)
-EVAL = ["scenes=[92]", "pairs=1", "k=2", "steps=2", "max_episodes=6", "threads=1", "progress=false"]
+EVAL = ["scenes=[92]", "pairs=1", "k=2", "steps=2", "max_episodes=6", "threads=1", "progress=false", "ablation_pairs=0"]
 
 
 def test_evaluate_end_to_end(ckpt, tmp_path):
     out = tmp_path / "ev"
-    r = _run("evaluate.py", [f"ckpt={ckpt}", f"out={out}", f"run_dir={tmp_path / 'tb'}", f"mocap={CMU}", *EVAL])
+    ablated = [a if a != "ablation_pairs=0" else "ablation_pairs=1" for a in EVAL]
+    r = _run("evaluate.py", [f"ckpt={ckpt}", f"out={out}", f"run_dir={tmp_path / 'tb'}", f"mocap={CMU}", *ablated])
     assert r.returncode == 0, r.stderr[-3000:]
     rep = json.loads((out / "report.json").read_text())
     mocap = rep["settings"]["static"]["mocap"]                 # real CMU clips measured the same way
@@ -125,10 +126,14 @@ def test_evaluate_end_to_end(ckpt, tmp_path):
         assert block["model"]["apd_m"] is not None and block["model"]["foot_skating"] is not None
         # the output is one body whatever a 100-step model predicts; the network's own joints are not
         assert block["model"]["bone_max_dev"] < 1e-3 < block["model_raw"]["bone_max_dev"]
-        assert block["model"]["mesh_penetration_frames"] is not None and block["reference"]["mesh_penetration_frames"] is None
+        # every row is measured on a body mesh (the data and the network's joints on a body put on them)
+        for row in ("model", "model_raw", "reference"):
+            assert block[row]["mesh_penetration_frames"] is not None and "mesh_contact_rate" in block[row]
+        check_ablation(block, keys, st)
         assert f"## {st} setting" in md and (out / "plots" / f"{st}_scene92.png").is_file()
     # two tables (Body, Task) per setting, each with a model, network and reference row
-    assert md.count("| model |") == 4 and md.count("| network joints |") == 4 and md.count("| reference |") == 4
+    assert md.count("| model |") == 4 and md.count("| network joints |") == 6 and md.count("| reference |") == 4
+    assert md.count("| without foot lock |") == 2 and md.count("| Ablation |") == 2       # one ablation table per setting
     assert md.count("| real mocap |") == 2                    # in the Body tables only
     assert not list(out.glob(".tmp-*")) and any((tmp_path / "tb").iterdir())
     # Deterministic: same seed, same numbers.
@@ -151,6 +156,25 @@ def test_evaluate_end_to_end(ckpt, tmp_path):
     assert rep3["meta"]["protocol"]["loop"] == {"project": False, "smooth": 0.0}
     assert rep3["settings"]["static"]["model"]["bone_max_dev"] > 1e-3    # 0 with the body (above)
     assert "`loop.project=False`, `loop.smooth=0.0`" in (out3 / "report.md").read_text()
+
+
+def check_ablation(block: dict, keys: list[str], setting: str) -> None:
+    """The ablation rows of one setting: every stage, every figure, on the one pair; a stage that
+    acts after the last episode leaves the episodes (the network's joints) as they were."""
+    from motiongen.sampling.settings import CLEANUP_STAGES
+
+    abl = block["ablation"]
+    assert list(abl) == ["model", "model_raw", *CLEANUP_STAGES] and block["pairs"][0]["ablated"] == sorted(CLEANUP_STAGES)
+    for row, fig in abl.items():
+        assert fig["n_pairs"] == 1 and all(k in fig for k in keys if k in block["model"]), row
+    assert abl["model"]["bone_max_dev"] == block["model"]["bone_max_dev"]        # one pair: the same motions
+    assert abl["model_raw"]["bone_max_dev"] == block["model_raw"]["bone_max_dev"]
+    # without the body, bones stretch; with it, every variant of the clean-up keeps one body
+    assert abl["projection"]["bone_max_dev"] > 1e-3 > max(abl[s]["bone_max_dev"] for s in CLEANUP_STAGES if s != "projection")
+    # no hand action in the static setting: switching the hand reach off changes nothing
+    if setting == "static":
+        same = {k: v for k, v in abl["hand_reach"].items() if k != "seconds_per_pair"}
+        assert same == {k: v for k, v in abl["model"].items() if k != "seconds_per_pair"}
 
 
 def test_evaluate_over_several_checkpoints_reports_mean_and_spread(ckpt, tmp_path, capsys):
@@ -183,6 +207,21 @@ def test_evaluate_over_several_checkpoints_reports_mean_and_spread(ckpt, tmp_pat
     assert aggregate_reports([reps[0]])["settings"]["static"]["spread"]["model"]["foot_skating"] is None
 
 
+def test_several_checkpoints_average_the_ablation_rows_too():
+    from motiongen.eval.seeds import aggregate_reports
+
+    def report(ckpt, skate):
+        rows = {"model": {"foot_skating": skate}, "model_raw": {"foot_skating": 2 * skate},
+                "foot_lock": {"foot_skating": 3 * skate}}
+        return {"meta": {"ckpt": ckpt, "step": 1}, "metrics": [], "notes": [], "wall_s": 1.0,
+                "settings": {"static": {"pairs": [], "model": rows["model"], "ablation": rows}}}
+
+    agg = aggregate_reports([report("a", 0.1), report("b", 0.3)])["settings"]["static"]
+    assert agg["ablation"]["foot_lock"]["foot_skating"] == pytest.approx(0.6)
+    assert agg["ablation_spread"]["foot_lock"]["foot_skating"] == pytest.approx(0.6 / np.sqrt(2))
+    assert agg["ablation"]["model_raw"]["foot_skating"] == pytest.approx(0.4)
+
+
 @pytest.mark.parametrize("args, needle", [
     (["ckpt=/nonexistent/x.pt"], "does not exist"),
     (["scenes=[5]"], "not among the test scenes"),
@@ -200,6 +239,9 @@ def test_evaluate_over_several_checkpoints_reports_mean_and_spread(ckpt, tmp_pat
     (["min_distance=-1"], "min_distance: expected a number >= 0"),
     (["k=abc"], "k: expected an integer, got 'abc'"),
     (["mocap=/no/such/clips.bvh"], "mocap: /no/such/clips.bvh does not exist"),   # before the evaluation, not after
+    (["ablate=[foot_lock,nope]"], "ablate: expected one of projection, seam_blend, foot_lock"),
+    (["ablation_pairs=-1"], "ablation_pairs: expected an integer >= 0"),
+    (["loop.seat_shift=maybe"], "loop.seat_shift: expected true or false"),
 ])
 def test_evaluate_user_errors(ckpt, tmp_path, args, needle, capsys):
     if "data.root=NOTEST" in args:

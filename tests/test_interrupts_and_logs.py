@@ -2,9 +2,7 @@
 no temp file, no half set), how it ends (one line: `error: ...` exit 2, `interrupted...` exit
 130), and the log a run writes when its output is not a terminal (lines, and train.log)."""
 
-import logging
 import os
-import random
 import signal
 import subprocess
 import sys

@@ -325,3 +325,25 @@ def test_the_clean_up_in_the_loop_seats_the_body_among_placed_objects():
     cup_pts = (np.argwhere(cup_occ) + 0.5) * 0.01 + cup.origin + cup_pose[:3, 3]         # (N, 3) voxel centres
     wrists = m.joints[0][:, list(HAND_JOINTS)].reshape(-1, 3)                            # (2T, 3)
     assert np.linalg.norm(wrists[:, None] - cup_pts[None], axis=-1).min() > 0.01
+
+
+def test_clean_up_variants_equal_runs_with_that_clean_up():
+    """generate(cleanups=): the same episodes cleaned up another way equal a whole run with that
+    loop configuration, bit for bit (the ablation rows of `evaluate` rest on this); a variant
+    that would change the episodes themselves is refused."""
+    import dataclasses
+
+    loaded = _loaded()
+    goals = [Goal([1.5, 2.0]), Goal([0.0, 3.5], "sit", 1.0)]
+    loop = LoopConfig(stall_s=None)
+    off = {"smoothing": dataclasses.replace(loop, smooth=0.0), "seat_height": dataclasses.replace(loop, seat_shift=False)}
+    kw = dict(sampler=SamplerSettings("ddim", 2))
+    both = _generate(loaded, goals, loop=loop, cleanups=off, generator=torch.Generator().manual_seed(0), **kw)
+    assert set(both.variants) == set(off)
+    for name, lc in off.items():
+        alone = _generate(loaded, goals, loop=lc, generator=torch.Generator().manual_seed(0), **kw)
+        assert np.array_equal(both.variants[name].joints, alone.joints), name
+        assert np.array_equal(both.variants[name].joints_raw, both.joints_raw)          # the same episodes
+    assert not np.array_equal(both.variants["smoothing"].joints, both.joints)            # the stage does something
+    with pytest.raises(ConfigError, match="seam_blend"):
+        _generate(loaded, goals, loop=loop, cleanups={"x": dataclasses.replace(loop, seam_blend=0.0)}, **kw)

@@ -164,6 +164,18 @@ class BodyModel(torch.nn.Module):
             }
         return self._mesh_buffers
 
+    def part_vertices(self, joint: int) -> np.ndarray:
+        """(K,) ids of the vertices moved most by `joint` (of the full skeleton) or a joint below
+        it: `part_vertices(21)` is the right hand, fingers included."""
+        owner = np.asarray(self.skinning_weights).argmax(1)                               # (V,)
+        below = np.zeros(len(self.full_parents), bool)
+        for j in range(len(self.full_parents)):
+            k = j
+            while k >= 0 and k != joint:
+                k = self.full_parents[k]
+            below[j] = k == joint
+        return np.flatnonzero(below[owner])
+
     def motion_vertices(self, params, frames=slice(None), vertex_ids=None) -> np.ndarray:
         """(n, K, 3) mesh vertices (numpy, the model's dtype) of a motion's parameters at
         `frames` (a slice or indices), only `vertex_ids` (default all). params: a `BodyParams`

@@ -129,7 +129,7 @@ class GaussianDiffusion:
         x0 (B, L, D) clean; t (B,) long; known_mask (B, L, D) bool marks entries the caller
         pins. Those entries of x_t hold the clean values (``known``, default x0) — exactly what
         the samplers write there — so training and sampling show the model the same input.
-        window_terms: optional callable (window, x0, free) -> {name: (weight, term)}, losses on
+        window_terms: optional callable (window, x0, free, t) -> {name: (weight, term)}, losses on
         the window as sampling assembles it (e.g. `training.body_losses.BodyLosses`).
         Returns ``loss`` (to backprop) plus named terms for logging.
         """
@@ -166,7 +166,7 @@ class GaussianDiffusion:
             weighted = [(key, weight, self._difference_loss(window, x0, free, channel_weights, order))
                         for order, key, weight in diffs]
             if window_terms is not None:
-                weighted += [(key, weight, term) for key, (weight, term) in window_terms(window, x0, free).items()]
+                weighted += [(key, weight, term) for key, (weight, term) in window_terms(window, x0, free, t).items()]
             for key, weight, term in weighted:
                 terms["loss"] = terms["loss"] + weight * term
                 terms[key] = term.detach()

@@ -17,7 +17,7 @@ from motiongen.eval.pairs import SETTINGS, ProtocolConfig
 from motiongen.importers.sources import DataConfig
 from motiongen.loading.keys import CheckpointKeys
 from motiongen.sampling.sample_config import MAX_SAMPLES, check_sampler_settings
-from motiongen.sampling.settings import SamplerSettings
+from motiongen.sampling.settings import CLEANUP_STAGES, SamplerSettings
 
 
 # The splits `evaluate` runs on: the training scenes are what the model has seen.
@@ -35,6 +35,8 @@ class LoopOverrides:
     smooth: float | None = None     # Gaussian sigma (output frames) before the final solve; 0 = off
     seam_blend: float | None = None  # seconds; 0 = off
     solve_smoothness: float | None = None  # final solve's joint-acceleration weight; None = by the model's frame rate
+    swing_clearance: bool | None = None  # false: the final solve may pull a swinging foot below its predicted height
+    seat_shift: bool | None = None  # false: seated bodies are not moved onto their seats
 
 
 @dataclass
@@ -95,6 +97,9 @@ def check_protocol_keys(p: ProtocolConfig) -> None:
     r("seed", p.seed, 0, integer=True)
     r("pskl_frames", p.pskl_frames, 2, 100000, integer=True)
     r("contact_thresh", p.contact_thresh, 0, 1, lo_open=True)
+    r("ablation_pairs", p.ablation_pairs, 0, 10000, integer=True)
+    for stage in p.ablate:
+        require_choice("ablate", stage, tuple(CLEANUP_STAGES))
 
 
 def mocap_paths(mocap) -> list[Path]:

@@ -4,11 +4,12 @@ scores on the scene's own motion data)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from motiongen import metrics as M
+from motiongen.eval.mesh_scores import BodyMeshes, InteractionObject, mesh_scores
 from motiongen.eval.pairs import ProtocolConfig
 from motiongen.eval.scene_context import HAND_NAMES, SceneContext
 from motiongen.skeleton import LEFT_HIP, PELVIS, RIGHT_HIP, joint_set_for
@@ -35,21 +36,29 @@ def object_contact(ctx: SceneContext, joints, labelled, names, oid_poses, thresh
     return int((d < thresh).any(axis=1).sum()), int(frames.size)
 
 
+@dataclass
+class MeshInput:
+    """A motion's body mesh for the mesh figures (`eval.mesh_scores`): the meshes of the body
+    model, the motion's SMPL-X parameters, and each interaction's frames and object."""
+    meshes: BodyMeshes
+    params: object                                          # BodyParams
+    interactions: list = field(default_factory=list)        # [(frames (F,) int, InteractionObject)]
+
+
 def motion_metrics(ctx: SceneContext, joints, fps: float, names, labels, action_names, setting: str,
-                   cfg: ProtocolConfig, boundaries, objects=(), vertices=None) -> dict:
+                   cfg: ProtocolConfig, boundaries, objects=(), mesh: MeshInput | None = None) -> dict:
     """Per-trajectory metrics for joints (T, J, 3) with per-frame labels (T, A) bool.
     objects: [(oid, poses (T, 4, 4))] for the dynamic setting's object contact/approach.
-    vertices: (T', V', 3) body-mesh vertices (any subset of frames and vertices) where the motion
-    has a body, for skin penetration."""
+    mesh: the motion on a body, for the figures measured on its skin."""
     j = np.asarray(joints, np.float64)
     pen = M.scene_penetration(j, ctx.grid, sdf=ctx.sdf)
     flo = M.floor_penetration(j)
     out = {**M.body_metrics(j, fps, joint_set_for(names).parents), "penetration_frames": pen["frame_ratio"],
            "penetration_max_m": pen["max_depth"], "floor_penetration_frames": flo["frame_ratio"],
            "jerk": M.mean_jerk(j, fps)}
-    if vertices is not None:
-        vp = M.scene_penetration(np.zeros((len(vertices), 0, 3)), ctx.grid, vertices=vertices, sdf=ctx.sdf)
-        out["mesh_penetration_frames"], out["mesh_penetration_max_m"] = vp["frame_ratio"], vp["max_depth"]
+    if mesh is not None:
+        out.update(mesh_scores(mesh.meshes, ctx, mesh.params, labels, action_names, setting, cfg,
+                               mesh.interactions))
     b = [x for x in boundaries if 1 <= x < len(j)]
     out["seam_ratio"] = M.seam_jump(j, b).ratio if b else float("nan")
     labels = np.asarray(labels, bool)
@@ -97,42 +106,56 @@ class ReferenceResult:
     motions: list[np.ndarray]           # (T_i, J, 3) per sequence
 
 
-def reference_metrics(ctx: SceneContext, setting: str, cfg: ProtocolConfig, episode_frames: int) -> ReferenceResult:
+def data_interactions(ctx: SceneContext, seq, labels, cfg: ProtocolConfig) -> list[tuple[np.ndarray, InteractionObject]]:
+    """The data's interactions in one sequence: per segment labelled `cfg.dynamic_action`, its
+    frames and the object it is done with (nearest the hands at the segment's start: the rule
+    the dynamic pairs use), so the data is measured against one object per interaction as
+    the model is."""
+    names = ctx.ds.action_names
+    if cfg.dynamic_action not in names or ctx.ds.object_ids is None:
+        return []
+    hands = _hand_idx(ctx.ds.joint_set.names)
+    out = []
+    for s, e in true_runs(np.asarray(labels)[:, names.index(cfg.dynamic_action)]):
+        found = ctx.segment_object(seq, s, hands)
+        if found is not None:
+            out.append((np.arange(s, e), InteractionObject(found[0], found[1])))
+    return out
+
+
+def only_during(frames: np.ndarray, obj: InteractionObject) -> tuple[int, np.ndarray]:
+    """(oid, poses (T, 4, 4)) with the object far away outside `frames`: joint contact and
+    approach then count this object during its own interaction only."""
+    poses = obj.poses.copy()
+    away = np.ones(len(poses), bool)
+    away[frames] = False
+    poses[away, :3, 3] = 1e6
+    return obj.oid, poses
+
+
+def reference_metrics(ctx: SceneContext, setting: str, cfg: ProtocolConfig, episode_frames: int,
+                      meshes: BodyMeshes | None = None) -> ReferenceResult:
     """The same metrics on the scene's own motion data. Seams: boundaries every
     `episode_frames` frames (the model's episode length), so the ratio shows what an
-    invisible seam looks like on real data. Objects move with the data's per-frame poses."""
+    invisible seam looks like on real data. Dynamic: each pick-up segment against its own
+    object at the data's per-frame poses. meshes: put the data on a body for the mesh figures."""
     ds = ctx.ds
     names = list(ds.joint_set.names)
     out, motions = [], []
     for seq in ctx.sequences:
         j = np.asarray(ds.joints[seq.start:seq.end], np.float64)
         lab = np.asarray(ds.actions[seq.start:seq.end], bool)
-        objs = []
-        if setting == "dynamic" and ds.object_ids is not None:
-            ids = np.asarray(ds.object_ids[seq.start:seq.end])                               # (T, K)
-            poses = np.asarray(ds.object_poses[seq.start:seq.end], np.float64)               # (T, K, 4, 4)
-            for k in range(ids.shape[1]):
-                for oid in np.unique(ids[:, k]):
-                    if oid < 0:
-                        continue
-                    p = poses[:, k].copy()
-                    p[ids[:, k] != oid, :3, 3] = 1e6                                         # absent: far away
-                    objs.append((int(oid), p))
+        inter = data_interactions(ctx, seq, lab, cfg) if setting == "dynamic" else []
+        objs = [only_during(f, o) for f, o in inter]
         bounds = list(range(episode_frames, len(j), episode_frames))
-        m = motion_metrics(ctx, j, ds.fps, names, lab, ds.action_names, setting, cfg, bounds, objs)
-        if setting == "dynamic" and cfg.dynamic_action in ds.action_names and objs:
+        mesh = MeshInput(meshes, meshes.of_joints(j), inter) if meshes is not None else None
+        m = motion_metrics(ctx, j, ds.fps, names, lab, ds.action_names, setting, cfg, bounds, objs, mesh)
+        m.pop("object_dist_m", None)
+        idx = _hand_idx(names)
+        if inter and idx:
             # Closest hand approach per interaction segment, averaged over the segments.
-            a = ds.action_names.index(cfg.dynamic_action)
-            idx = _hand_idx(names)
-            segs = true_runs(lab[:, a])
-            if segs and idx:
-                ds_ = []
-                for s, e in segs:
-                    fr = np.arange(s, e)
-                    ds_.append(min(ctx.object_distance(j[fr][:, idx], oid, p[fr]).min() for oid, p in objs))
-                m["object_dist_m"] = float(np.mean(ds_))
-            else:
-                m.pop("object_dist_m", None)
+            m["object_dist_m"] = float(np.mean([ctx.object_distance(j[f][:, idx], o.oid, o.poses[f]).min()
+                                                for f, o in inter]))
         out.append(m)
         motions.append(j.astype(np.float32))
     return ReferenceResult(out, motions)

@@ -14,6 +14,7 @@ import numpy as np
 from motiongen.errors import ConfigError
 from motiongen.eval.scene_context import SceneContext
 from motiongen.sampling.goals import Goal, Route, path_length, plan_route
+from motiongen.sampling.settings import CLEANUP_STAGES
 
 SETTINGS = ("static", "dynamic")
 MAX_ACTION_SECONDS = 10.0
@@ -36,6 +37,12 @@ class ProtocolConfig:
     pskl_frames: int = 60               # PSKL chunk length (frames at 30 fps = 2 s)
     contact_thresh: float = 0.02
     loop: dict = field(default_factory=dict)   # LoopConfig fields set for every pair (the sampler's clean-up)
+    # Ablation: on the first `ablation_pairs` pairs of each scene and setting, the output again
+    # with each of these clean-up stages off in turn (`sampling.settings.CLEANUP_STAGES`), same
+    # pair and noise; 0 pairs or [] = none. Two stages act inside the episode loop and need the
+    # pair sampled again; the others redo only the clean-up.
+    ablate: tuple = tuple(CLEANUP_STAGES)
+    ablation_pairs: int = 1
 
 
 @dataclass

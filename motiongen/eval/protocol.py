@@ -21,86 +21,20 @@ This module samples the pairs and aggregates; the pieces: `eval.scene_context` (
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-import torch
 from tqdm import tqdm
 
 from motiongen import metrics as M
 from motiongen.body.model import load_body_model
-from motiongen.eval.motion_scores import ReferenceResult, goal_metrics, motion_metrics, reference_metrics
-from motiongen.eval.pairs import SETTINGS, Pair, ProtocolConfig, make_pairs, pair_seed
+from motiongen.eval.mesh_scores import BodyMeshes, pooled
+from motiongen.eval.motion_scores import ReferenceResult, reference_metrics
+from motiongen.eval.pair_runs import Measured, PairResult, run_pair
+from motiongen.eval.pairs import SETTINGS, Pair, ProtocolConfig, make_pairs
 from motiongen.eval.scene_context import SceneContext
 from motiongen.rates import DATA_FPS
-from motiongen.sampling import LoopConfig, SamplerSettings, generate
-
-
-@dataclass
-class PairResult:
-    pair: Pair
-    per_sample: list[dict]              # k metric dicts of the output motions
-    per_sample_raw: list[dict]          # the same metrics on the network's own joints (before the body)
-    apd: float
-    joints: np.ndarray                  # (k, T, J, 3) float32 world joints at 30 fps, the whole batch
-    kept: list[np.ndarray]              # k arrays (T_s, J, 3): each sample up to its finish
-    kept_raw: list[np.ndarray]          # the same for the network's own joints
-    completed: float                    # fraction of samples that reached the final goal
-    wall_s: float
-
-
-def body_vertices(bm, body, frames: int, every_frame: int = 3, every_vertex: int = 8) -> np.ndarray:
-    """(T', V', 3) mesh vertices of the first `frames` frames of a `BodyMotion`: every 3rd frame,
-    every 8th vertex (enough to find skin in furniture; a fraction of the cost of whole meshes)."""
-    return bm.motion_vertices(body, slice(0, frames, every_frame), np.arange(0, bm.num_vertices, every_vertex))
-
-
-def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler, body_model=None) -> PairResult:
-    """Sample k motions for one pair (one batch) and measure them (the output, and the network's
-    own joints before they were put on a body)."""
-    target = (pair.object_id, pair.object_pose) if pair.object_id is not None else None
-    objs = ctx.objects_for_generate(target)
-    dev = loaded.device if loaded.device.type != "mps" else torch.device("cpu")
-    gen = torch.Generator(device=dev).manual_seed(pair_seed(cfg.seed, pair.setting, pair.scene, pair.index))
-    t0 = time.perf_counter()
-    with warnings.catch_warnings():
-        # generate warns when samples stop before the goal; the report counts them instead.
-        warnings.simplefilter("ignore")
-        motion = generate(loaded, ctx.grid, route=pair.route, walkable=ctx.fmap, objects=objs,
-                          sampler=sampler, num_samples=cfg.k, generator=gen, body_model=body_model,
-                          loop=LoopConfig(max_episodes=cfg.max_episodes, out_fps=ctx.ds.fps, source_fps=ctx.ds.fps,
-                                          stall_s=None, **cfg.loop))   # the protocol's own budget: max_episodes
-    wall = time.perf_counter() - t0
-    names = list(motion.joint_names)
-    A = len(motion.action_names)
-    joints = motion.joints                                                                   # (k, T, J, 3)
-    boundaries = [int(b) for b in motion.episode_starts[1:]]
-    goal_xz = pair.goal.xz
-    results, raw_results, kept, kept_raw = [], [], [], []
-    for s in range(cfg.k):
-        # A sample that finished early idles while the batch goes on: cut it at its finish so
-        # the padding does not dilute its metrics (APD below uses the full, equal-length batch).
-        T = int(motion.finish_frame[s]) + 1 if motion.finish_frame[s] >= 0 else joints.shape[1]
-        T = max(T, 4)
-        js = joints[s, :T]                                                                   # (T, J, 3)
-        kept.append(js)
-        kept_raw.append(motion.joints_raw[s, :T])
-        lab = np.zeros((T, A), bool)                                                         # (T, A)
-        a = motion.actions[s, :T]
-        lab[np.flatnonzero(a >= 0), a[a >= 0]] = True
-        oposes = [(pair.object_id, np.repeat(pair.object_pose[None], T, 0))] if target else []
-        verts = None
-        if body_model is not None and motion.bodies is not None:
-            verts = body_vertices(body_model, motion.bodies[s], T)
-        for out, js_, v in ((results, js, verts), (raw_results, motion.joints_raw[s, :T], None)):
-            m = motion_metrics(ctx, js_, motion.fps, names, lab, list(motion.action_names), pair.setting, cfg,
-                               boundaries, oposes, vertices=v)
-            m.update(goal_metrics(js_, motion.arrival_frame[s, -1], goal_xz, pair.route.subgoals))
-            out.append(m)
-    apd = M.apd(joints) if cfg.k >= 2 else float("nan")
-    done = float(np.mean(motion.finish_frame >= 0))
-    return PairResult(pair, results, raw_results, apd, joints, kept, kept_raw, done, wall)
+from motiongen.sampling import SamplerSettings
 
 
 # ---------------------------------------------------------------------------------------
@@ -112,23 +46,57 @@ def _chunks(motions, n: int) -> list[np.ndarray]:
     return [m[i:i + n] for m in motions for i in range(0, len(m) - n + 1, n)]
 
 
-def pskl_sets(a, b, fps: float, n: int) -> tuple[float, float]:
-    ca, cb = _chunks(a, n), _chunks(b, n)
-    if not ca or not cb:
-        return float("nan"), float("nan")
-    return M.pskl(ca, cb, fps, length=n)
+def even_subset(items: list, m: int) -> list:
+    """m of the items, evenly spaced over the list (all of them when m >= len)."""
+    if m >= len(items):
+        return list(items)
+    return [items[i] for i in np.linspace(0, len(items), m, endpoint=False).astype(np.int64)]
+
+
+def reference_halves(ref_motions, n: int) -> tuple[list, list]:
+    """The reference's n-frame chunks in two halves of equal size: the chunks of every other
+    sequence (whole sequences, so no chunk has its neighbour in the other half), the larger
+    half evenly thinned to the smaller one's size."""
+    a, b = _chunks(ref_motions[0::2], n), _chunks(ref_motions[1::2], n)
+    m = min(len(a), len(b))
+    return even_subset(a, m), even_subset(b, m)
+
+
+def pskl_equal(gen, ref_half, fps: float, n: int) -> tuple[float, float, int]:
+    """PSKL between the generated motions' chunks and a reference half, both thinned to the
+    same number of chunks (the estimate's bias depends on the set sizes, so a model and the
+    reference's own floor are compared at one size). Returns (PSKL(gen,ref), PSKL(ref,gen), chunks)."""
+    g = _chunks(gen, n)
+    m = min(len(g), len(ref_half))
+    if not m:
+        return float("nan"), float("nan"), 0
+    kab, kba = M.pskl(even_subset(g, m), even_subset(ref_half, m), fps, length=n)
+    return kab, kba, m
 
 
 BODY_KEYS = ("bone_cv", "bone_max_dev", "slide_mps", "foot_skating", "penetration_frames", "penetration_max_m",
              "mesh_penetration_frames", "mesh_penetration_max_m", "floor_penetration_frames", "jerk", "seam_ratio")
 
 
+def view(r: PairResult, row: str) -> Measured:
+    """One row's motions of a pair: "model" (the output), "model_raw" (the network's joints) or
+    an ablated stage's output."""
+    if row == "model":
+        return Measured(r.per_sample, r.kept, r.apd, r.completed)
+    if row == "model_raw":
+        return Measured(r.per_sample_raw, r.kept_raw, r.apd, r.completed)
+    return r.ablation[row]
+
+
 def summarize_model(results: list[PairResult], ref_motions: list[np.ndarray], fps: float,
-                    cfg: ProtocolConfig, raw: bool = False) -> dict:
+                    cfg: ProtocolConfig, raw: bool = False, row: str | None = None) -> dict:
     """Setting-level numbers for the model row (means over samples; contact pooled over frames).
-    raw: the row of the network's own joints instead of the output motions. Goal success
-    counts the body (hips midpoint), which no pin can put on the goal."""
-    samples = [m for r in results for m in (r.per_sample_raw if raw else r.per_sample)]
+    raw: the row of the network's own joints instead of the output motions; row: any `view`
+    (an ablated stage: over the pairs that have it). Goal success counts the body (hips
+    midpoint), which no pin can put on the goal."""
+    row = row or ("model_raw" if raw else "model")
+    views = [view(r, row) for r in results if row in ("model", "model_raw") or row in r.ablation]
+    samples = [m for v in views for m in v.per_sample]
     if not samples:
         return {}
     d_final = [m["goal_dist_body_m"] for m in samples]
@@ -140,13 +108,27 @@ def summarize_model(results: list[PairResult], ref_motions: list[np.ndarray], fp
     out["traj_fail_rate"] = M.trajectory_fail_rate([np.asarray(m["_waypoints"]) for m in samples], 0.5)
     hits, frames = sum(m["_contact_hits"] for m in samples), sum(m["_contact_frames"] for m in samples)
     out["contact_rate"] = hits / frames if frames else float("nan")
-    out["apd_m"] = M.finite_mean(r.apd for r in results)
-    mine = [x for r in results for x in (r.kept_raw if raw else r.kept)]
-    kab, kba = pskl_sets(mine, ref_motions, fps, cfg.pskl_frames)
-    out["pskl_gen_ref"], out["pskl_ref_gen"] = kab, kba
-    out["completed"] = M.finite_mean(r.completed for r in results)
-    out["n_pairs"], out["n_samples"] = len(results), len(samples)
+    out.update(pooled(samples))
+    out["apd_m"] = M.finite_mean(v.apd for v in views)
+    _, half = reference_halves(ref_motions, cfg.pskl_frames)
+    out["pskl_gen_ref"], out["pskl_ref_gen"], out["pskl_chunks"] = pskl_equal(
+        [x for v in views for x in v.kept], half, fps, cfg.pskl_frames)
+    out["completed"] = M.finite_mean(v.completed for v in views)
+    out["n_pairs"], out["n_samples"] = len(views), len(samples)
     out["seconds_per_pair"] = M.finite_mean(r.wall_s for r in results)
+    return out
+
+
+def summarize_ablation(results: list[PairResult], ref_motions, fps: float, cfg: ProtocolConfig) -> dict:
+    """The ablation table of a setting: the output and the network's joints on the pairs that
+    were ablated, and the output without each stage on the same pairs ({} when none was)."""
+    subset = [r for r in results if r.ablation]
+    if not subset:
+        return {}
+    out = {"model": summarize_model(subset, ref_motions, fps, cfg),
+           "model_raw": summarize_model(subset, ref_motions, fps, cfg, raw=True)}
+    for stage in subset[0].ablation:
+        out[stage] = summarize_model(subset, ref_motions, fps, cfg, row=stage)
     return out
 
 
@@ -164,9 +146,9 @@ def summarize_reference(refs: list[ReferenceResult], fps: float, cfg: ProtocolCo
         out[k] = None
     hits, frames = sum(m["_contact_hits"] for m in seqs), sum(m["_contact_frames"] for m in seqs)
     out["contact_rate"] = hits / frames if frames else float("nan")
-    kab, kba = pskl_sets(motions[0::2], motions[1::2], fps, cfg.pskl_frames) if len(motions) >= 2 \
-        else (float("nan"), float("nan"))
-    out["pskl_gen_ref"], out["pskl_ref_gen"] = kab, kba
+    out.update(pooled(seqs))
+    a, b = reference_halves(motions, cfg.pskl_frames)
+    out["pskl_gen_ref"], out["pskl_ref_gen"], out["pskl_chunks"] = pskl_equal(a, b, fps, cfg.pskl_frames)
     out["n_sequences"] = len(seqs)
     out["n_frames"] = int(sum(len(x) for x in motions))
     return out
@@ -188,6 +170,7 @@ class Evaluation:
     model: dict[str, dict]                             # setting -> summary (summarize_model)
     reference: dict[str, dict]                         # setting -> summary (summarize_reference)
     model_raw: dict[str, dict] = field(default_factory=dict)   # setting -> the network's own joints
+    ablation: dict[str, dict] = field(default_factory=dict)    # setting -> summarize_ablation
     contexts: dict[int, SceneContext] = field(repr=False, default_factory=dict)
     notes: list[str] = field(default_factory=list)
     wall_s: float = 0.0
@@ -200,6 +183,7 @@ def evaluate(loaded, ds, scene_ids, cfg: ProtocolConfig, settings=SETTINGS, samp
     t0 = time.perf_counter()
     sampler = sampler or SamplerSettings()
     body_model = body_model if body_model is not None else load_body_model()
+    meshes = BodyMeshes(body_model, loaded.joint_set)
     say = log or (lambda m: None)
     names = list(loaded.action_names)
     ctxs = {sid: SceneContext(ds, sid, cfg.body_radius) for sid in scene_ids}
@@ -226,15 +210,16 @@ def evaluate(loaded, ds, scene_ids, cfg: ProtocolConfig, settings=SETTINGS, samp
         for st in settings:
             for pair in pairs[st]:
                 bar.set_postfix_str(f"{st} scene {pair.scene} pair {pair.index}")
-                results[st].append(run_pair(loaded, ctxs[pair.scene], pair, cfg, sampler, body_model))
+                results[st].append(run_pair(loaded, ctxs[pair.scene], pair, cfg, sampler, body_model, meshes))
                 bar.update(1)
     finally:
         bar.close()
     ep = episode_frames(loaded, ds.fps)
-    refs = {st: [reference_metrics(ctxs[sid], st, cfg, ep) for sid in ctxs] for st in settings}
+    refs = {st: [reference_metrics(ctxs[sid], st, cfg, ep, meshes) for sid in ctxs] for st in settings}
     ref_motions = [m for r in refs[settings[0]] for m in r.motions] if settings else []
     model = {st: summarize_model(results[st], ref_motions, ds.fps, cfg) for st in settings}
     model_raw = {st: summarize_model(results[st], ref_motions, ds.fps, cfg, raw=True) for st in settings}
     reference = {st: summarize_reference(refs[st], ds.fps, cfg) for st in settings}
-    return Evaluation(list(settings), pairs, results, refs, model, reference, model_raw, ctxs, notes,
+    ablation = {st: summarize_ablation(results[st], ref_motions, ds.fps, cfg) for st in settings}
+    return Evaluation(list(settings), pairs, results, refs, model, reference, model_raw, ablation, ctxs, notes,
                       time.perf_counter() - t0)

@@ -36,8 +36,12 @@ TASK_METRICS = [
     ("success_0.5", "success@0.5 (hips)", "ratio", "↑"),
     ("traj_fail_rate", "traj fail", "ratio", "↓"),
     ("completed", "completed", "ratio", "↑"),
-    ("contact_rate", "contact rate", "ratio", "↑"),
-    ("object_dist_m", "hand-object dist", "m", "↓"),
+    ("mesh_contact_rate", "contact (mesh)", "ratio", "↑"),
+    ("touched", "touched (mesh)", "ratio", "↑"),
+    ("hand_object_sdist_m", "hand-object signed dist (mesh)", "m", "≈ref"),
+    ("hand_inside_frames", "hand inside object (mesh)", "ratio", "↓"),
+    ("contact_rate", "contact (joints)", "ratio", "↑"),
+    ("object_dist_m", "hand-object dist (joints)", "m", "↓"),
     ("apd_m", "APD", "m", "↑"),
     ("pskl_gen_ref", "PSKL(gen,ref)", "nats", "↓"),
     ("pskl_ref_gen", "PSKL(ref,gen)", "nats", "↓"),
@@ -45,7 +49,7 @@ TASK_METRICS = [
 METRICS = BODY_METRICS + TASK_METRICS
 # Rows of every table: the output, the network's joints before they were put on a body, the data.
 ROWS = (("model", "model"), ("model_raw", "network joints"), ("reference", "reference"), ("mocap", "real mocap"))
-DYNAMIC_ONLY = {"object_dist_m"}
+DYNAMIC_ONLY = {"object_dist_m", "touched", "hand_object_sdist_m", "hand_inside_frames"}
 
 
 def _clean(v):
@@ -75,13 +79,14 @@ def build_report(ev, meta: dict) -> dict:
             d["completed"] = r.completed
             d["seconds"] = r.wall_s
             d["samples"] = [{k: v for k, v in m.items() if not k.startswith("_")} for m in r.per_sample]
+            d["ablated"] = sorted(r.ablation)
             pairs.append(d)
         model = dict(ev.model.get(st, {}))
         if meta.get("goal_pinned"):
             model["goal_dist_m"] = None          # the sampler put the pelvis there: not the model's doing
         out["settings"][st] = {"model": model, "model_raw": ev.model_raw.get(st, {}),
                                "reference": ev.reference.get(st, {}), "mocap": meta.get("mocap_row") or {},
-                               "pairs": pairs}
+                               "ablation": ev.ablation.get(st, {}), "pairs": pairs}
     return _clean(out)
 
 
@@ -94,10 +99,10 @@ def _fmt(v, unit: str) -> str:
     return f"{v:.3g}" if a >= 100 or a < 0.01 and a > 0 else f"{v:.3f}"
 
 
-def _cell(block: dict, row: str, key: str, unit: str) -> str:
+def _cell(block: dict, row: str, key: str, unit: str, spread: str = "spread") -> str:
     """A table cell: the row's value, with ± its spread over checkpoints where it has one."""
     v = (block.get(row) or {}).get(key)
-    sd = ((block.get("spread") or {}).get(row) or {}).get(key)
+    sd = ((block.get(spread) or {}).get(row) or {}).get(key)
     return _fmt(v, unit) + (f" ± {_fmt(sd, unit)}" if sd else "")
 
 
@@ -151,12 +156,31 @@ def markdown(report: dict) -> str:
                     continue
                 lines.append(f"| {name} | " + " | ".join(_cell(block, key, k, u) for k, _, u, _ in keys) + " |")
             lines.append("")
+        lines += ablation_table(st, block)
         lines += [f"![{st} metrics](plots/{st}_metrics.png)", ""]
     if report["notes"]:
         lines += ["## Notes", ""] + [f"- {x}" for x in report["notes"]] + [""]
     lines += ["Trajectory figures: `plots/<setting>_scene<id>.png` (map, A* path, start ●, goal ★ / "
               "interaction ■, object ▲, the k pelvis tracks).", ""]
     return "\n".join(lines)
+
+
+def ablation_table(setting: str, block: dict) -> list[str]:
+    """The ablation rows of a setting as markdown lines ([] when it has none)."""
+    abl = block.get("ablation") or {}
+    if not abl:
+        return []
+    n = (abl.get("model") or {}).get("n_pairs", 0)
+    keys = [x for x in METRICS if setting == "dynamic" or x[0] not in DYNAMIC_ONLY]
+    lines = [f"**Ablation** ({n} pair(s), the same pairs and noise in every row): the output, the network's own "
+             "joints, and the output with one clean-up stage off (`loop.*`; docs/evaluation.md).", "",
+             "| Ablation | " + " | ".join(f"{lab} {a}" + (f" [{u}]" if u != "ratio" else "") for _, lab, u, a in keys)
+             + " |", "|---|" + "---:|" * len(keys)]
+    for row in abl:
+        name = {"model": "output", "model_raw": "network joints"}.get(row, f"without {row.replace('_', ' ')}")
+        lines.append(f"| {name} | " + " | ".join(_cell({**abl, "ablation_spread": block.get("ablation_spread")},
+                                                       row, k, u, "ablation_spread") for k, _, u, _ in keys) + " |")
+    return lines + [""]
 
 
 def log_tensorboard(run_dir, report: dict, images: dict[str, Path], step: int) -> None:

@@ -10,13 +10,15 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from motiongen.annotation.vertex_contact import SceneTargets
 from motiongen.routing import walkable_map
-from motiongen.scene.distance_field import surface_distance
+from motiongen.scene.distance_field import MeshField, PlaneField, surface_distance
 from motiongen.scene.voxelize import voxelize_mesh
 from motiongen.skeleton import PELVIS
 from motiongen.spans import true_runs
 
 HAND_NAMES = ("left_wrist", "right_wrist", "left_index1", "right_index1")
+OBJECT_VOXEL = 0.01          # objects are small: a finer solid grid than the scene's (as annotate-contact)
 
 
 @dataclass
@@ -40,6 +42,8 @@ class SceneContext:
         free = np.argwhere(self.fmap.free)                                                   # (N, 2) cells
         self.free_xz = self.fmap.origin + (free + 0.5) * self.fmap.cell                     # (N, 2) centres
         self._obj_cache: dict[int, tuple] = {}
+        self._fields: dict[int, MeshField | None] = {}
+        self._targets: SceneTargets | None = None
 
     @property
     def sdf(self):
@@ -103,6 +107,36 @@ class SceneContext:
         f = self.sequences[0].start
         ids = np.asarray(self.ds.object_ids[f])
         return [(int(o), np.asarray(self.ds.object_poses[f, k], np.float64)) for k, o in enumerate(ids) if o >= 0]
+
+    def segment_object(self, seq, start: int, hands: list[int]) -> tuple[int, np.ndarray] | None:
+        """The object an interaction starting at frame `start` of `seq` (relative) is done with:
+        the one nearest the hands there (the rule the dynamic pairs use), as (id, its poses over
+        the whole sequence (T, 4, 4), far away where it is absent), or None."""
+        f = seq.start + start
+        oid, _ = self._object_near(f, hands)
+        if oid is None:
+            return None
+        ids = np.asarray(self.ds.object_ids[seq.start:seq.end])                               # (T, K)
+        k = int(np.flatnonzero(ids[start] == oid)[0])
+        poses = np.asarray(self.ds.object_poses[seq.start:seq.end, k], np.float64).copy()    # (T, 4, 4)
+        poses[ids[:, k] != oid, :3, 3] = 1e6
+        return oid, poses
+
+    def contact_targets(self) -> SceneTargets:
+        """The floor and the static scene as contact surfaces (`annotation.vertex_contact`):
+        the scene's mesh where the dataset has one, else its occupancy grid."""
+        if self._targets is None:
+            mesh = self.ds.scene_mesh(self.id)
+            scene = MeshField(mesh, voxel_size=self.grid.voxel_size) if mesh is not None else self.sdf
+            self._targets = SceneTargets(floor=PlaneField(0.0), scene=scene)
+        return self._targets
+
+    def object_field(self, oid: int) -> MeshField | None:
+        """Exact signed distance to object `oid`'s mesh, in the object's frame (None: no mesh)."""
+        if oid not in self._fields:
+            mesh = self.ds.object_mesh(oid)
+            self._fields[oid] = None if mesh is None else MeshField(mesh, voxel_size=OBJECT_VOXEL)
+        return self._fields[oid]
 
     def object(self, oid: int):
         """(occupancy grid in the object frame, KD-tree of surface samples in the object frame) or None."""

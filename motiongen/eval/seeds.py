@@ -44,16 +44,20 @@ def aggregate_reports(reports: list[dict]) -> dict:
            "checkpoints": [{"ckpt": r["meta"]["ckpt"], "pairs": {st: b["pairs"] for st, b in r["settings"].items()}}
                            for r in reports]}
     for st, block in first["settings"].items():
-        agg = {"pairs": block["pairs"], "spread": {}, "per_ckpt": {}}
+        agg = {"pairs": block["pairs"], "spread": {}, "per_ckpt": {}, "ablation": {}, "ablation_spread": {}}
         for row, _ in ROWS:
-            rows = [r["settings"][st].get(row) or {} for r in reports]
-            if not any(rows):
-                agg[row] = {}
-                continue
-            nums = _numbers(rows)
-            stats = {k: _stats(v) for k, v in nums.items()}
-            agg[row] = {**rows[0], **{k: m for k, (m, _) in stats.items()}}
-            agg["spread"][row] = {k: s for k, (_, s) in stats.items()}
-            agg["per_ckpt"][row] = nums
+            agg[row], agg["spread"][row], agg["per_ckpt"][row] = _row([r["settings"][st].get(row) or {} for r in reports])
+        for row in block.get("ablation") or {}:
+            agg["ablation"][row], agg["ablation_spread"][row], _ = _row(
+                [(r["settings"][st].get("ablation") or {}).get(row) or {} for r in reports])
         out["settings"][st] = agg
     return out
+
+
+def _row(rows: list[dict]) -> tuple[dict, dict, dict]:
+    """One row over the checkpoints: (means, spreads, each checkpoint's values)."""
+    if not any(rows):
+        return {}, {}, {}
+    nums = _numbers(rows)
+    stats = {k: _stats(v) for k, v in nums.items()}
+    return {**rows[0], **{k: m for k, (m, _) in stats.items()}}, {k: s for k, (_, s) in stats.items()}, nums

@@ -107,15 +107,16 @@ def planted_at_output(stance: np.ndarray, joints: np.ndarray, contact_joints, mo
 
 
 def solve_bodies(body, joints: np.ndarray, rot_model: torch.Tensor, planted: np.ndarray | None,
-                 contact_joints, model_fps: float, out_fps: float, reach: list | None = None, cfg=None) -> list:
+                 contact_joints, model_fps: float, out_fps: float, reach: list | None = None, cfg=None,
+                 samples=None) -> list:
     """The final solve, per sample: joints (S, T, J, 3) to follow at the output rate (resampled
     projected frames), rot_model (S, Tm, 22, 3, 3) the episodes' rotations (twist hints),
     planted (S, T, C) or None, reach: per sample a `reach_targets` tuple or None, cfg: the
-    solve's RefineConfig (None: body.solve.SOLVE_CONFIG). Returns one `BodyMotion` per sample."""
-    S, T = joints.shape[:2]
+    solve's RefineConfig (None: body.solve.SOLVE_CONFIG), samples: which to solve (None: all).
+    Returns one `BodyMotion` per sample solved."""
     _, near = output_times(rot_model.shape[1], model_fps, out_fps)
     out = []
-    for s in range(S):
+    for s in range(joints.shape[0]) if samples is None else samples:
         X = torch.as_tensor(joints[s, :, :NUM_BODY_JOINTS], dtype=body.rest.dtype)        # (T, 22, 3)
         R0 = analytic_init(X, body.rest[s], rot_model[s, near].to(X.dtype))              # (T, 22, 3, 3)
         out.append(body.solve(s, joints[s], R0, None if planted is None else planted[s], contact_joints,

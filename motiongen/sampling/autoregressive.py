@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 import torch
@@ -67,14 +67,14 @@ from motiongen.sampling.progress import (Progress, Targets, advance, goal_outcom
                                          output_arrival_errors, shortfall)
 from motiongen.sampling.projection import project_window
 from motiongen.sampling.scene_query import SceneQuery
-from motiongen.sampling.settings import LoopConfig, Motion, SamplerSettings
+from motiongen.sampling.settings import POST_LOOP_FIELDS, LoopConfig, Motion, SamplerSettings
 
 
 def generate(loaded, scene=None, *, route: Route, walkable: WalkableMap | None = None,
              start_yaw: float | None = None, objects: Sequence[tuple] = (),
              sampler: SamplerSettings = SamplerSettings(), num_samples: int = 1,
              generator: torch.Generator | None = None, loop: LoopConfig = LoopConfig(), log=None,
-             body_model=None) -> Motion:
+             body_model=None, cleanups: Mapping[str, LoopConfig] | None = None) -> Motion:
     """Generate S = num_samples motions along `route` in `scene`.
 
     loaded: a `LoadedModel` (loading.build.load_model). scene: an OccupancyGrid or None
@@ -87,12 +87,16 @@ def generate(loaded, scene=None, *, route: Route, walkable: WalkableMap | None =
     body_model: the `BodyModel` of the motion's body (default `load_body_model()`: the user's
     SMPL-X file from $MOTIONGEN_SMPLX_MODEL, else the procedural one); used when loop.project.
     log: optional callable(str) for progress lines.
+    cleanups: {name: LoopConfig} differing from `loop` in the clean-up after the last episode
+    only (`settings.POST_LOOP_FIELDS`): the same episodes cleaned up each way, in
+    `Motion.variants[name]` (evaluation's ablation rows).
     Raises ConfigError for bad settings; returns a `Motion`.
     """
     t_start = time.perf_counter()
     if num_samples < 1:
         raise ConfigError(f"num_samples must be >= 1, got {num_samples}")
     spec = loop_spec(loaded, route, num_samples, loop, start_yaw, sampler, generator)
+    check_cleanups(loop, cleanups or {})
     if loop.project and body_model is None:
         body_model = load_body_model()
     plan = goal_plan(route, loaded.action_names, scene, loop, spec, loaded.mask.p_goal_y, walkable)
@@ -126,9 +130,23 @@ def generate(loaded, scene=None, *, route: Route, walkable: WalkableMap | None =
         warnings.warn(f"stopped early, no progress for loop.stall_s={loop.stall_s:g} s: "
                       + shortfall(progress, plan, state.pelvis_now(), progress.stalled), stacklevel=2)
 
-    out = clean_up(state, loaded.layout, spec.model_fps, plan, loop, objects, scene)
-    return as_motion(loaded, route, loop.out_fps, spec.model_fps, state.episodes[first_kept:], state, progress, out,
-                     time.perf_counter() - t_start)
+    def finish(lc: LoopConfig) -> Motion:
+        out = clean_up(state, loaded.layout, spec.model_fps, plan, lc, objects, scene)
+        return as_motion(loaded, route, lc.out_fps, spec.model_fps, state.episodes[first_kept:], state, progress,
+                         out, time.perf_counter() - t_start)
+
+    motion = finish(loop)
+    motion.variants = {name: finish(lc) for name, lc in (cleanups or {}).items()}
+    return motion
+
+
+def check_cleanups(loop: LoopConfig, cleanups: Mapping[str, LoopConfig]) -> None:
+    """Each variant may differ from `loop` only where the clean-up after the last episode reads."""
+    for name, lc in cleanups.items():
+        bad = [f for f in LoopConfig.__dataclass_fields__
+               if f not in POST_LOOP_FIELDS and getattr(lc, f) != getattr(loop, f)]
+        if bad:
+            raise ConfigError(f"cleanups[{name!r}]: {', '.join(bad)} change(s) the episodes, not their clean-up")
 
 
 def run_episode(spec: LoopSpec, loaded, query: SceneQuery, body_model, state: EpisodeState, t: Targets) -> None:

@@ -17,6 +17,7 @@ from motiongen.body.solve import SOLVE_CONFIG
 from motiongen.sampling.assemble import (output_times, planted_at_output, resample, solve_bodies,
                                          solve_smoothness_for_rate)
 from motiongen.sampling.episode import EpisodeState
+from motiongen.sampling.hand_clearance import settle_hands
 from motiongen.sampling.interactions import hand_targets, merge_targets, seat_shift
 from motiongen.sampling.progress import GoalPlan
 from motiongen.sampling.settings import LoopConfig
@@ -48,16 +49,24 @@ def clean_up(state: EpisodeState, layout, model_fps: float, plan: GoalPlan, loop
         out = smooth_non_feet(out, loop.smooth, layout.contact_joints)
     labels = model_labels[:, near]                                                          # (S, T)
     seats = [None] * out.shape[0]
-    if loop.project:
+    if loop.project and loop.seat_shift:
         out, seats = seat_bodies(out, labels, plan)
     bodies = None
     if state.body is not None:
         hands = hand_targets(out, labels, plan.names, loop.hand_actions, objects, scene) or [None] * out.shape[0]
         w = solve_smoothness_for_rate(model_fps) if loop.solve_smoothness is None else float(loop.solve_smoothness)
-        bodies = solve_bodies(state.body, out, torch.cat(state.rots, 1), planted if loop.foot_lock else None,
-                              layout.contact_joints, model_fps, loop.out_fps,
-                              [merge_targets(h, p) for h, p in zip(hands, seats)],
-                              cfg=dataclasses.replace(SOLVE_CONFIG, w_smooth_joints=w))
+        clearance = SOLVE_CONFIG.w_clearance if loop.swing_clearance else 0.0
+        reach = [merge_targets(h, p) for h, p in zip(hands, seats)]
+        rots = torch.cat(state.rots, 1)
+
+        def solve(samples, targets):
+            return solve_bodies(state.body, out, rots, planted if loop.foot_lock else None, layout.contact_joints,
+                                model_fps, loop.out_fps, targets, samples=samples,
+                                cfg=dataclasses.replace(SOLVE_CONFIG, w_smooth_joints=w, w_clearance=clearance))
+
+        bodies = solve(None, reach)
+        bodies = settle_hands(bodies, reach, objects, state.body.bm,
+                              lambda s, r: solve([s], [r if i == s else None for i in range(len(reach))])[0])
         out = np.stack([b.joints for b in bodies])
     return CleanMotion(out, raw_out, planted, labels, bodies, model_joints)
 

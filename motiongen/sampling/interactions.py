@@ -9,7 +9,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from motiongen.skeleton import BODY_JOINT_NAMES, FOOT_JOINTS, HAND_JOINTS, PELVIS
+from motiongen.skeleton import BODY_JOINT_NAMES, BODY_PARENTS, FOOT_JOINTS, HAND_JOINTS, PELVIS
 from motiongen.spans import ramp_weights, true_runs
 
 # Every voxel face, edge and corner direction: (26, 3) in {-1, 0, 1}^3 less the zero vector.
@@ -21,6 +21,14 @@ _CLEARANCE_TOL = 1e-3
 # box is among the nearest few voxel centres (a box's distance and its centre's differ by at
 # most half a voxel diagonal).
 _NEAREST = 16
+# The hand beyond the wrist joint, as points along the forearm's direction (m): a flat SMPL-X
+# hand reaches about 0.19 m from the wrist to the middle fingertip. Without a finger joint the
+# solve leaves the hand in line with the forearm, so a wrist target whose hand would lie inside
+# an object is no target: the fingers would be in the object (measured on the body mesh,
+# docs/evaluation.md).
+HAND_SPAN = (0.06, 0.12, 0.18)
+# How far (m) those points must stay out of every object.
+FINGER_CLEARANCE = 0.01
 
 
 class ObjectSurface(NamedTuple):
@@ -98,12 +106,30 @@ def wrist_candidates(surfaces: list[ObjectSurface], palm: float, scene=None) -> 
     return cand
 
 
+def hand_clear(cand: np.ndarray, forearm: np.ndarray, surfaces: list[ObjectSurface]) -> np.ndarray:
+    """(M,) bool: the wrist candidates (M, 3) whose hand, along the unit `forearm` direction (3,)
+    (`HAND_SPAN`), stays `FINGER_CLEARANCE` out of every object."""
+    if not len(cand) or not surfaces or not HAND_SPAN:
+        return np.ones(len(cand), bool)
+    pts = cand[:, None] + np.asarray(HAND_SPAN)[None, :, None] * forearm                  # (M, P, 3)
+    return object_distance(pts.reshape(-1, 3), surfaces).reshape(len(cand), -1).min(1) >= FINGER_CLEARANCE
+
+
+def forearm_direction(joints: np.ndarray, wrist: int) -> np.ndarray:
+    """Unit elbow-to-wrist direction (3,) averaged over frames of joints (n, J, 3)."""
+    d = joints[:, wrist] - joints[:, BODY_PARENTS[wrist]]                                 # (n, 3)
+    d = (d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-9)).mean(0)
+    return d / max(float(np.linalg.norm(d)), 1e-9)
+
+
 def reach_targets(joints: np.ndarray, labels: np.ndarray, action: int, hands, cand: np.ndarray,
-                  ramp: int = 8, max_dist: float = 0.5):
+                  ramp: int = 8, max_dist: float = 0.5, surfaces: list[ObjectSurface] | None = None):
     """Where a hand must be for each run of frames labelled `action` (a hand interaction):
     joints (T, J, 3) the motion so far, labels (T,) action index per frame, hands: joint indices
     to choose from (wrists), cand (M, 3): where a wrist may be (`wrist_candidates`: `palm`
     metres out from an object's surface, out of every object and the scene).
+    surfaces: the objects; given, a candidate where the hand along the run's forearm would be
+    in one is dropped for that hand (`hand_clear`).
     Per run: the hand closest to a candidate, and that candidate. Weights ramp in and out over
     `ramp` frames so the reach is a movement, not a jump. A hand farther than `max_dist` from
     every candidate is left alone: pulling it there would drag the whole body. Returns
@@ -116,10 +142,15 @@ def reach_targets(joints: np.ndarray, labels: np.ndarray, action: int, hands, ca
         best = None
         for h in hands:
             mean = joints[a:b, h].mean(0)                                                  # (3,)
-            d = np.linalg.norm(cand - mean, axis=-1)
+            ok = cand[hand_clear(cand, forearm_direction(joints[a:b], h), surfaces or [])]
+            if not len(ok):
+                continue
+            d = np.linalg.norm(ok - mean, axis=-1)
             i = int(np.argmin(d))
             if best is None or d[i] < best[0]:
-                best = (d[i], h, cand[i])
+                best = (d[i], h, ok[i])
+        if best is None:
+            continue
         dist, h, target = best
         if dist > max_dist:
             continue
@@ -145,7 +176,8 @@ def hand_targets(joints: np.ndarray, labels: np.ndarray, names, hand_actions, ob
     cand = wrist_candidates(surfaces, palm, scene) if surfaces else np.zeros((0, 3))       # (M, 3)
     out = []
     for s in range(joints.shape[0]):
-        parts = [r for a in acts if (r := reach_targets(joints[s], labels[s], a, HAND_JOINTS, cand)) is not None]
+        parts = [r for a in acts
+                 if (r := reach_targets(joints[s], labels[s], a, HAND_JOINTS, cand, surfaces=surfaces)) is not None]
         out.append(merge_targets(*parts))
     return out
 

@@ -72,10 +72,31 @@ class LoopConfig:
     # with mask.p_goal_y > 0.
     seat_actions: tuple[str, ...] = ("sit", "lie down")
     seat_offset: float = 0.10
+    seat_shift: bool = True        # the clean-up moves a seated body onto its seat and holds the pelvis there
+    swing_clearance: bool = True   # the final solve keeps an unplanted foot from being pulled below its predicted height
 
     def __post_init__(self):
         if self.stall_s is not None and not 0 <= self.stall_s < float("inf"):
             raise ConfigError(f"loop.stall_s: expected seconds >= 0 (0 or null: off), got {self.stall_s}")
+
+
+# The clean-up's stages, each as the LoopConfig fields that switch it off (evaluation's ablation
+# rows). Stages of the episode loop change what the next episode is conditioned on, so switching
+# one off means sampling again; the others act after the last episode and can be redone on the
+# same episodes (`generate(cleanups=)`).
+CLEANUP_STAGES: dict[str, dict] = {
+    "projection": {"project": False},
+    "seam_blend": {"seam_blend": 0.0},
+    "foot_lock": {"foot_lock": False},
+    "clearance": {"swing_clearance": False},
+    "smoothing": {"smooth": 0.0},
+    "hand_reach": {"hand_actions": ()},
+    "seat_height": {"seat_shift": False},
+}
+IN_LOOP_STAGES = ("projection", "seam_blend")
+# The LoopConfig fields only the clean-up after the last episode reads.
+POST_LOOP_FIELDS = frozenset({"foot_lock", "swing_clearance", "smooth", "hand_actions", "seat_shift",
+                              "solve_smoothness"})
 
 
 @dataclass
@@ -116,6 +137,8 @@ class Motion:
     episodes: list[Episode] = field(default_factory=list, repr=False)
     # (S, G) str per goal: reached | stalled | episode limit | not attempted (progress.goal_outcomes)
     goal_outcome: np.ndarray | None = None
+    # name -> the same episodes cleaned up with another LoopConfig (`generate(cleanups=)`)
+    variants: dict = field(default_factory=dict, repr=False)
 
     def failed_goals(self) -> list[dict]:
         """Every goal a sample did not reach: {sample, goal (1-based), reason, distance_m (from

@@ -10,6 +10,11 @@ pinned values elsewhere), in metres, over the frames with any free entry:
 * planted feet: the speed (m/s) of each stance joint between consecutive frames in which the
   clean window flags it planted (`Layout` stance channels), mean over such pairs. Needs stance
   channels (`window.contact_joints`).
+
+Weighting over noise levels (`train.geometry_weighting`): `uniform`, or `signal`: each window
+weighted by ᾱ_t, the share of signal in its input. At high noise the best prediction is the
+mean of many motions, whose bones are shorter and whose feet move less than any one motion's;
+asking it for one body's geometry there pulls it away from the mean the diffusion loss wants.
 """
 
 from __future__ import annotations
@@ -22,21 +27,26 @@ from motiongen.errors import ConfigError
 
 
 class BodyLosses:
-    """`terms(window, x0, free) -> {name: (weight, term)}` for `GaussianDiffusion.training_losses`:
-    window, x0 (B, L, D) normalised, free (B, L, D) the entries the model predicts."""
+    """`terms(window, x0, free, t) -> {name: (weight, term)}` for `GaussianDiffusion.training_losses`:
+    window, x0 (B, L, D) normalised, free (B, L, D) the entries the model predicts, t (B,) steps.
+    noise_weights (T,): each window's weight by its diffusion step (None: all 1)."""
 
-    def __init__(self, layout: Layout, stats: NormStats, parents, fps: float, w_bone: float, w_foot: float):
+    def __init__(self, layout: Layout, stats: NormStats, parents, fps: float, w_bone: float, w_foot: float,
+                 noise_weights: torch.Tensor | None = None):
         if w_foot > 0 and not layout.num_contacts:
             raise ConfigError("train.w_planted_feet needs stance channels (window.contact_joints)")
         self.layout, self.stats, self.fps = layout, stats, float(fps)
         self.child = [j for j, p in enumerate(parents) if p >= 0]
         self.parent = [parents[j] for j in self.child]
         self.w_bone, self.w_foot = float(w_bone), float(w_foot)
+        self.noise_weights = noise_weights        # (T,) per diffusion step, or None: uniform
 
-    def __call__(self, window: torch.Tensor, x0: torch.Tensor, free: torch.Tensor) -> dict:
+    def __call__(self, window: torch.Tensor, x0: torch.Tensor, free: torch.Tensor, t: torch.Tensor) -> dict:
         j_hat, _ = self.layout.decode(self.stats.denormalize(window))                    # (B, L, J, 3)
         j, planted = self.layout.decode(self.stats.denormalize(x0))                      # (B, L, J, 3), (B, L, C)
         frames = free.amax(-1)                                                            # (B, L) any free entry
+        if self.noise_weights is not None:
+            frames = frames * self.noise_weights.to(frames)[t][:, None]                   # (B, L)
         out = {}
         if self.w_bone > 0:
             out["bone_length"] = (self.w_bone, self._bones(j_hat, j, frames))
@@ -47,11 +57,11 @@ class BodyLosses:
     def _bones(self, j_hat, j, frames):
         length = lambda x: (x[..., self.child, :] - x[..., self.parent, :]).norm(dim=-1)  # noqa: E731  (B, L, nb)
         err = (length(j_hat) - length(j)).abs().mean(-1)                                  # (B, L)
-        return (err * frames).sum() / frames.sum().clamp(min=1)
+        return (err * frames).sum() / frames.sum().clamp(min=1e-8)
 
     def _feet(self, j_hat, planted, frames):
         feet = j_hat[..., list(self.layout.contact_joints), :]                            # (B, L, C, 3)
         speed = torch.diff(feet, dim=1).norm(dim=-1) * self.fps                           # (B, L-1, C)
         both = (planted[:, 1:] & planted[:, :-1]).to(speed.dtype)                          # (B, L-1, C)
         w = both * torch.maximum(frames[:, 1:], frames[:, :-1])[..., None]
-        return (speed * w).sum() / w.sum().clamp(min=1)
+        return (speed * w).sum() / w.sum().clamp(min=1e-8)

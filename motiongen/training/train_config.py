@@ -31,6 +31,7 @@ class TrainConfig:
     # against the clean window's, and the speed (m/s) of feet the data flags planted. 0 = off.
     w_bone_length: float = 0.0
     w_planted_feet: float = 0.0
+    geometry_weighting: str = "uniform"   # uniform | signal: each window by its share of signal ᾱ_t (body_losses.py)
     log_every: int = 50
     val_every: int = 500             # 0 disables validation
     val_batches: int = 4
@@ -58,6 +59,7 @@ class TrainConfig:
             r(f"train.{key}", getattr(self, key), 0)
         for key in ("min_lr_ratio", "cond_drop_scene", "cond_drop_actions"):
             r(f"train.{key}", getattr(self, key), 0, 1)
+        require_choice("train.geometry_weighting", self.geometry_weighting, ("uniform", "signal"))
         # 1 or more makes the EMA weights grow without bound (1.5 reached 4.7e22).
         r("train.ema_decay", self.ema_decay, 0, 1, hi_open=True)
         require_choice("train.lr_schedule", self.lr_schedule, LR_SCHEDULES)

@@ -112,8 +112,9 @@ def body_losses(run: Run) -> BodyLosses | None:
     tc, ws = run.tc, run.train_set
     if tc.w_bone_length <= 0 and tc.w_planted_feet <= 0:
         return None
+    weights = run.diffusion.alphas_cumprod if tc.geometry_weighting == "signal" else None   # (T,)
     return BodyLosses(ws.layout, ws.stats, run.ds.joint_set.parents, run.ds.fps / ws.cfg.stride,
-                      tc.w_bone_length, tc.w_planted_feet)
+                      tc.w_bone_length, tc.w_planted_feet, weights)
 
 
 def _train_step(run: Run, loop: _Loop, batch: dict) -> None:

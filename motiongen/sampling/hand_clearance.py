@@ -1,0 +1,105 @@
+"""Hands out of objects, on the body's own mesh, after the final solve.
+
+The hand reach puts a wrist 3 cm out from an object (`interactions.hand_targets`), but a hand is
+wider and longer than a wrist joint: posed on the body, its fingers or its side can end up in
+the object. After the final solve, each run of a hand target is checked on the mesh: the hand's
+vertices against every placed object (their occupancy grids, the sampler's only geometry of
+them); where the deepest one is inside, the target moves by that depth plus a margin along
+that vertex's way out, and the sample is solved again (at most `ROUNDS` times).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import torch
+
+from motiongen.scene.distance_field import surface_distance
+from motiongen.scene.occupancy import OccupancyGrid
+from motiongen.skeleton import HAND_JOINTS
+
+ROUNDS = 3               # re-solves per sample at most
+# Past the surface by this much more than the depth: the grid's surface is exact to half a
+# voxel, the object's own surface somewhere inside that.
+EXTRA_MARGIN = 0.002     # m, beyond half a voxel
+
+
+def settle_hands(bodies: list, reach: list, objects, bm, resolve: Callable[[int, tuple], object],
+                 rounds: int | None = None) -> list:
+    """bodies: one solved BodyMotion per sample; reach: per sample the final solve's targets
+    (frames, joints, points, weights) or None; objects [(OccupancyGrid, pose (4, 4))]; bm the
+    body model; resolve(s, reach) solves sample s again with new targets. Returns the bodies,
+    those whose hands were in an object solved again (`reach` is updated in place)."""
+    rounds = ROUNDS if rounds is None else rounds             # read here: benchmarks set ROUNDS = 0
+    if not objects or not rounds:
+        return bodies
+    fields = object_fields(objects)
+    ids = {h: bm.part_vertices(h) for h in HAND_JOINTS}
+    out = list(bodies)
+    for s, r in enumerate(reach):
+        for _ in range(rounds if r is not None else 0):
+            moved = push_out(out[s], r, fields, ids, bm)
+            if moved is None:
+                break
+            reach[s] = r = moved
+            out[s] = resolve(s, r)
+    return out
+
+
+def object_fields(objects) -> list:
+    """[(signed distance field, pose (4, 4), voxel size)] of placed objects [(grid, pose)], each
+    grid padded by one free voxel: a tight grid of a box is all occupied, and the field then
+    knows no way out."""
+    out = []
+    for grid, pose in objects:
+        v = grid.voxel_size
+        padded = OccupancyGrid.from_dense(np.pad(np.asarray(grid.dense(), bool), 1), np.asarray(grid.origin) - v, v)
+        out.append((surface_distance(padded), np.asarray(pose, np.float64), v))
+    return out
+
+
+def push_out(body, reach: tuple, fields, ids: dict, bm) -> tuple | None:
+    """The targets with every frame whose targeted hand is inside an object moved: that frame's
+    target becomes the wrist where the solve put it, moved by the depth plus a margin along the
+    deepest vertex's way out, at full weight (a ramp frame too: the network's hand may pass
+    through the object on its way there). None when no hand is in an object."""
+    frames, joints, points, weights = reach
+    points, weights, changed = np.array(points, np.float64), np.array(weights, np.float64), False
+    for h, vids in ids.items():
+        rows = np.flatnonzero(joints == h)
+        if not len(rows):
+            continue
+        verts = bm.motion_vertices(body, frames[rows], vids)                                 # (F, K, 3)
+        wrist = body_joints(bm, body, frames[rows])[:, h]                                    # (F, 3)
+        for i, r in enumerate(rows):
+            depth, way_out, margin = deepest(np.asarray(verts[i], np.float64), fields)
+            if depth >= 0:
+                points[r], weights[r], changed = wrist[i] + (depth + margin) * way_out, 1.0, True
+    return (frames, joints, points, weights) if changed else None
+
+
+def body_joints(bm, body, frames: np.ndarray) -> np.ndarray:
+    """(F, 22, 3) float64 body joints of SMPL-X parameters at `frames`."""
+    t = lambda a: torch.as_tensor(np.asarray(a)[frames], dtype=bm.J_template.dtype)      # noqa: E731
+    with torch.no_grad():
+        J = bm.joints(t(body.global_orient), t(body.body_pose), t(body.transl),
+                      torch.as_tensor(np.asarray(body.betas), dtype=bm.J_template.dtype))
+    return J.double().numpy()
+
+
+def deepest(points: np.ndarray, fields) -> tuple[float, np.ndarray, float]:
+    """(depth m, unit direction out (3,), margin m) of the point deepest inside any object's
+    voxels (depth -1: none inside). A point in an occupied voxel less than half a voxel from a
+    free one has depth 0 and still moves out by the margin."""
+    best = (-1.0, np.zeros(3), 0.0)
+    for field, pose, voxel in fields:
+        local = (points - pose[:3, 3]) @ pose[:3, :3]                                       # Rᵀ(p − t)
+        inside = np.flatnonzero(field.grid.occupied(local, outside=False))
+        if not len(inside):
+            continue
+        q = field.query(points[inside], pose=pose)
+        i = int(np.argmin(q.distance))
+        if -q.distance[i] > best[0]:
+            best = (max(float(-q.distance[i]), 0.0), q.direction[i], 0.5 * voxel + EXTRA_MARGIN)
+    return best

@@ -1,0 +1,92 @@
+"""Hands out of objects after the final solve (`motiongen.sampling.hand_clearance`), on known
+geometry: the rest-pose body's right hand with its fingers 5 cm deep in a box."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from motiongen.body.model import BodyParams, load_body_model
+from motiongen.sampling.hand_clearance import EXTRA_MARGIN, deepest, object_fields, push_out, settle_hands
+from motiongen.scene.occupancy import OccupancyGrid
+from motiongen.skeleton import HAND_JOINTS
+
+T, VOX, DEPTH = 3, 0.01, 0.05
+RIGHT = HAND_JOINTS[1]
+
+
+@pytest.fixture(scope="module")
+def bm():
+    return load_body_model()
+
+
+def standing() -> BodyParams:
+    """The rest pose (arms out along x, the right hand at -x), pelvis 1 m up."""
+    tr = np.zeros((T, 3))
+    tr[:, 1] = 1.0
+    return BodyParams(np.zeros((T, 3)), np.zeros((T, 63)), tr, np.zeros(10))
+
+
+def box_over_fingers(bm, body):
+    """A box of 1 cm voxels from 20 cm beyond the right fingertips to DEPTH into the hand."""
+    tip = bm.motion_vertices(body, slice(0, 1), bm.part_vertices(RIGHT))[0, :, 0].min()
+    n = int(round((0.2 + DEPTH) / VOX))
+    grid = OccupancyGrid.from_dense(np.ones((n, 40, 40), bool), [tip - 0.2, 0.9, -0.2], VOX)
+    return grid, np.eye(4)
+
+
+def hand_inside(bm, body, objects) -> bool:
+    pts = bm.motion_vertices(body, slice(None), bm.part_vertices(RIGHT)).reshape(-1, 3)
+    return any(g.occupied(p, outside=False).any() for g, _ in objects for p in [pts])
+
+
+def wrist_target(bm, body):
+    J = bm.joints(*[__import__("torch").as_tensor(x, dtype=__import__("torch").float32)
+                    for x in (body.global_orient, body.body_pose, body.transl)]).numpy()
+    return (np.arange(T), np.full(T, RIGHT), J[:, RIGHT].astype(np.float64), np.ones(T))
+
+
+def test_the_hand_part_is_the_hand(bm):
+    right, left = bm.part_vertices(RIGHT), bm.part_vertices(HAND_JOINTS[0])
+    v = bm.motion_vertices(standing(), slice(0, 1))[0]
+    assert len(right) > 500 and not set(right) & set(left)
+    assert v[right, 0].max() < v[:, 0].min() + 0.25 and v[left, 0].min() > v[:, 0].max() - 0.25   # the hands are the ends
+
+
+def test_push_out_moves_the_target_by_the_depth_along_the_way_out(bm):
+    body = standing()
+    objects = [box_over_fingers(bm, body)]
+    fields = object_fields(objects)                    # the box's tight grid: all occupied
+    ids = {h: bm.part_vertices(h) for h in HAND_JOINTS}
+    depth, way, margin = deepest(bm.motion_vertices(body, np.arange(T), ids[RIGHT]).reshape(-1, 3), fields)
+    assert depth == pytest.approx(DEPTH, abs=VOX) and margin == pytest.approx(VOX / 2 + EXTRA_MARGIN)
+    assert way @ np.array([1.0, 0, 0]) > 0.95                                           # back towards the body
+    f, j, p, _ = wrist_target(bm, body)
+    reach = (f, j, p, np.array([0.3, 1.0, 0.3]))                    # ramping in and out: the hand is in the box on every frame
+    moved = push_out(body, reach, fields, ids, bm)
+    shift = moved[2] - reach[2]
+    assert moved[3].tolist() == [1.0, 1.0, 1.0]                     # held out on the ramp frames too
+    assert np.allclose(shift, shift[0]) and np.linalg.norm(shift[0]) == pytest.approx(depth + margin)
+    # the body moved by that shift has its hand out of the box: nothing left to push
+    out = dataclasses.replace(body, transl=body.transl + shift[0])
+    assert not hand_inside(bm, out, objects) and push_out(out, moved, fields, ids, bm) is None
+
+
+def test_settle_solves_again_until_the_hand_is_out(bm):
+    """With a solve that puts the wrist on its target, one round takes the hand out; a hand
+    already out, or no object, costs no solve."""
+    body = standing()
+    objects = [box_over_fingers(bm, body)]
+    start = wrist_target(bm, body)
+    calls = []
+
+    def resolve(s, r):
+        calls.append(s)
+        return dataclasses.replace(body, transl=body.transl + (r[2][0] - start[2][0]))
+
+    reach = [start, None]
+    settled = settle_hands([body, body], reach, objects, bm, resolve)
+    assert calls == [0] and not hand_inside(bm, settled[0], objects) and settled[1] is body
+    assert reach[0][2][0, 0] > start[2][0, 0]                                             # updated in place
+    assert settle_hands([settled[0]], [reach[0]], objects, bm, resolve) == [settled[0]] and calls == [0]
+    assert settle_hands([body], [start], [], bm, resolve) == [body]
