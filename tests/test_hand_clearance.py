@@ -90,3 +90,17 @@ def test_settle_solves_again_until_the_hand_is_out(bm):
     assert reach[0][2][0, 0] > start[2][0, 0]                                             # updated in place
     assert settle_hands([settled[0]], [reach[0]], objects, bm, resolve) == [settled[0]] and calls == [0]
     assert settle_hands([body], [start], [], bm, resolve) == [body]
+
+
+def test_the_other_hand_in_an_object_gets_a_target_too(bm):
+    """The reach targets the left hand; the right one is in the box on those frames: it gets
+    targets there, moved out; the left hand's are left as they were."""
+    body = standing()
+    fields = object_fields([box_over_fingers(bm, body)])
+    ids = {h: bm.part_vertices(h) for h in HAND_JOINTS}
+    f, _, p, w = wrist_target(bm, body)
+    left = (f, np.full(T, HAND_JOINTS[0]), p, w)
+    moved = push_out(body, left, fields, ids, bm)
+    new = moved[1] == RIGHT
+    assert new.sum() == T and sorted(moved[0][new].tolist()) == list(range(T))
+    assert np.array_equal(moved[2][~new], p) and (moved[2][new][:, 0] > p[:, 0].min()).all()

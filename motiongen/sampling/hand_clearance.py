@@ -22,7 +22,7 @@ from motiongen.skeleton import HAND_JOINTS
 ROUNDS = 3               # re-solves per sample at most
 # Past the surface by this much more than the depth: the grid's surface is exact to half a
 # voxel, the object's own surface somewhere inside that.
-EXTRA_MARGIN = 0.002     # m, beyond half a voxel
+EXTRA_MARGIN = 0.005     # m, beyond half a voxel
 
 
 def settle_hands(bodies: list, reach: list, objects, bm, resolve: Callable[[int, tuple], object],
@@ -60,23 +60,37 @@ def object_fields(objects) -> list:
 
 
 def push_out(body, reach: tuple, fields, ids: dict, bm) -> tuple | None:
-    """The targets with every frame whose targeted hand is inside an object moved: that frame's
-    target becomes the wrist where the solve put it, moved by the depth plus a margin along the
-    deepest vertex's way out, at full weight (a ramp frame too: the network's hand may pass
-    through the object on its way there). None when no hand is in an object."""
+    """The targets with every hand-action frame where a hand is inside an object moved: that
+    frame's target for that hand becomes the wrist where the solve put it, moved by the depth
+    plus a margin along the deepest vertex's way out, at full weight — a ramp frame too (the
+    network's hand may pass through the object on its way there), and the other hand too (it
+    gets a target on those frames). None when no hand is in an object."""
     frames, joints, points, weights = reach
-    points, weights, changed = np.array(points, np.float64), np.array(weights, np.float64), False
+    acting = np.unique(frames[np.isin(joints, list(ids))])                                  # frames of a hand action
+    if not len(acting):
+        return None
+    wrists = body_joints(bm, body, acting)                                                  # (F, 22, 3)
+    new = {(int(f), int(j)): i for i, (f, j) in enumerate(zip(frames, joints))}
+    points, weights, add, changed = np.array(points, np.float64), np.array(weights, np.float64), [], False
     for h, vids in ids.items():
-        rows = np.flatnonzero(joints == h)
-        if not len(rows):
-            continue
-        verts = bm.motion_vertices(body, frames[rows], vids)                                 # (F, K, 3)
-        wrist = body_joints(bm, body, frames[rows])[:, h]                                    # (F, 3)
-        for i, r in enumerate(rows):
+        verts = bm.motion_vertices(body, acting, vids)                                      # (F, K, 3)
+        for i, f in enumerate(acting):
             depth, way_out, margin = deepest(np.asarray(verts[i], np.float64), fields)
-            if depth >= 0:
-                points[r], weights[r], changed = wrist[i] + (depth + margin) * way_out, 1.0, True
-    return (frames, joints, points, weights) if changed else None
+            if depth < 0:
+                continue
+            target, changed = wrists[i, h] + (depth + margin) * way_out, True
+            if (int(f), h) in new:
+                points[new[int(f), h]], weights[new[int(f), h]] = target, 1.0
+            else:
+                add.append((f, h, target))
+    if not changed:
+        return None
+    if add:
+        frames = np.concatenate([frames, [a[0] for a in add]])
+        joints = np.concatenate([joints, [a[1] for a in add]])
+        points = np.concatenate([points, [a[2] for a in add]])
+        weights = np.concatenate([weights, np.ones(len(add))])
+    return frames, joints, points, weights
 
 
 def body_joints(bm, body, frames: np.ndarray) -> np.ndarray:
