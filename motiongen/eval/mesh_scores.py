@@ -31,15 +31,15 @@ from motiongen.annotation.vertex_contact import BodySurface, ContactConfig, Scen
 from motiongen.body.model import BodyModel, BodyParams
 from motiongen.body.rotations import matrix_to_axis_angle
 from motiongen.body.solve import MotionBody
+from motiongen.eval.scene_context import HAND_NAMES
 from motiongen.skeleton import JointSet
 
 # Body parts whose skin carries an action: thighs and buttocks on a seat, the back on a bed,
 # the hand (fingers included) on an object.
-HANDS = ("left_wrist", "right_wrist", "left_index1", "right_index1")
 MESH_PARTS: dict[str, tuple[str, ...]] = {
     "sit": ("pelvis", "left_hip", "right_hip"),
     "lie down": ("pelvis", "left_hip", "right_hip", "spine1", "spine2", "spine3"),
-    "pick up": HANDS,
+    "pick up": HAND_NAMES,
 }
 
 
