@@ -85,3 +85,19 @@ def test_signal_weighting_counts_each_window_by_its_share_of_signal():
 def test_planted_feet_needs_stance_channels():
     with pytest.raises(ConfigError, match="window.contact_joints"):
         BodyLosses(Layout(22), NormStats(np.zeros(66, np.float32), np.ones(66, np.float32)), BODY.parents, FPS, 1.0, 1.0)
+
+
+def test_ramp_scales_both_weights_by_the_training_step():
+    """train.geometry_start=10, geometry_ramp=4: weight 0 before step 10, then 1/4, 2/4, 3/4 of
+    full, and full from step 13 on; the terms themselves do not change."""
+    rest = np.repeat(REST[None].astype(np.float64), L, 0)
+    x0 = window(rest, np.ones((L, 4), bool))
+    body = BodyLosses(LAYOUT, STATS, BODY.parents, FPS, 2.0, 0.5, None, start=10, ramp=4)
+    seen = []
+    for step in (0, 9, 10, 11, 12, 13, 500):
+        body.step = step
+        terms = body(x0, x0, torch.ones_like(x0), T0)
+        seen.append((terms["bone_length"][0], terms["planted_feet"][0]))
+    assert seen == [(0.0, 0.0), (0.0, 0.0), (0.5, 0.125), (1.0, 0.25), (1.5, 0.375), (2.0, 0.5), (2.0, 0.5)]
+    body = BodyLosses(LAYOUT, STATS, BODY.parents, FPS, 2.0, 0.5, None, start=0, ramp=0)
+    assert body.scale() == 1.0

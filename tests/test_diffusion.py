@@ -352,3 +352,39 @@ def test_channel_weights_give_a_weighted_mean_over_free_entries():
     sq = torch.arange(6.0) ** 2
     torch.testing.assert_close(out["loss"], (sq * w).sum() / w.sum())       # same for every free frame
     torch.testing.assert_close(out["mse_x0"], sq.mean())                    # logged MSE stays unweighted
+
+
+def test_hand_goal_per_sample():
+    """A hand goal per sample: each row pins its own wrist's x, y, z at the last frame only."""
+    m = known_mask(3, 5, 22, goal_xz=True, hand=torch.tensor([True, False, True]), hand_joint=torch.tensor([20, 21, 21]))
+    assert m[0, -1].nonzero().flatten().tolist() == [0, 2, 60, 61, 62]
+    assert m[1, -1].nonzero().flatten().tolist() == [0, 2]
+    assert m[2, -1].nonzero().flatten().tolist() == [0, 2, 63, 64, 65]
+    assert not m[:, :-1].any()
+    with pytest.raises(ConfigError, match="mask joint 22"):
+        known_mask(1, 5, 22, hand=True, hand_joint=22)
+
+
+def test_sample_known_mask_draws_either_hand():
+    cfg = MaskConfig(p_hand=0.5, hand_joints=(20, 21))
+    m = sample_known_mask(4000, 16, 22, cfg, torch.Generator().manual_seed(0))
+    left, right = m[:, -1, 60], m[:, -1, 63]
+    assert not (left & right).any()
+    assert float(left.float().mean()) == pytest.approx(0.25, abs=0.03)
+    assert float(right.float().mean()) == pytest.approx(0.25, abs=0.03)
+    # without a choice of hands the draws are those of before (the same generator sequence)
+    plain = sample_known_mask(64, 16, 22, MaskConfig(), torch.Generator().manual_seed(3))
+    again = sample_known_mask(64, 16, 22, MaskConfig(hand_joints=()), torch.Generator().manual_seed(3))
+    assert torch.equal(plain, again)
+
+
+def test_windows_that_end_in_a_hand_action_get_their_reaching_wrist_as_goal():
+    """mask.p_hand_action = 1: every acting window gets a goal on the wrist it names, the others
+    only the random hand goals of p_hand (0 here)."""
+    acting = torch.tensor([True, False, True, False])
+    wrist = torch.tensor([20, 21, 21, 20])
+    cfg = MaskConfig(p_hand=0.0, p_hand_action=1.0, hand_joints=(20, 21))
+    m = sample_known_mask(4, 8, 22, cfg, torch.Generator().manual_seed(0), action_hand=(acting, wrist))
+    assert m[0, -1, 60:63].all() and not m[0, -1, 63:66].any()
+    assert m[2, -1, 63:66].all() and not m[2, -1, 60:63].any()
+    assert not m[[1, 3], -1, 60:66].any()

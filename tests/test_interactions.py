@@ -4,7 +4,7 @@ known answers: a voxelised cup on a table, a book near it or far away, a seat un
 import numpy as np
 import pytest
 
-from motiongen.sampling.interactions import hand_targets, seat_height, seat_shift
+from motiongen.sampling.interactions import hand_goals, hand_reach, hand_targets, seat_height, seat_shift
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.skeleton import FOOT_JOINTS, HAND_JOINTS, PELVIS
 from tests.helpers import REST
@@ -175,3 +175,31 @@ def test_seat_shift_puts_the_pelvis_on_the_target_and_keeps_the_feet():
     frames, joints, points, weights = reach
     assert frames.tolist() == list(range(*RUN)) and set(joints.tolist()) == {PELVIS}
     assert np.allclose(points[mid - RUN[0]], goal) and weights[mid - RUN[0]] == 1.0
+
+
+# -- the in-loop hand goal: the same targets, given to the network as its wrist goal ------------
+def test_hand_goal_is_the_reach_target_of_the_nearer_wrist_and_only_for_hand_actions():
+    objects = [(cup(), CUP_POSE), (book(), pose(TABLE + [3.0, 0.0, 0.0]))]
+    reach = hand_reach(objects, None, NAMES, ("pick up",), HAND_JOINTS)
+    j, _ = body_with_wrist_at(NEAR_WRIST)
+    tail = np.repeat(j[:, -3:], 3, 0)                                                     # (3, 3, 22, 3)
+    labels = np.array([NAMES.index("pick up"), NAMES.index("walk"), NAMES.index("pick up")])
+    far = tail[2] + [0.0, 0.0, 1.5]                                                     # every joint 1.5 m off
+    tail[2] = far
+    joint, point = hand_goals(reach, tail, labels)
+    assert joint.tolist() == [HAND_JOINTS[1], -1, -1]                                   # walk: none; out of reach: none
+    assert_on_cup(point[0]) and np.isnan(point[1:]).all()
+    # the same point the clean-up's reach picks for that wrist over those frames
+    assert np.allclose(point[0], target(objects, NEAR_WRIST)[1], atol=1e-9)
+    # the left wrist, held out to the cup's other side, gets the goal instead
+    left = np.repeat((REST + (TABLE - [0.10, -0.05, 0.0] - REST[HAND_JOINTS[0]]))[None, None], 3, 1)
+    joint, point = hand_goals(reach, left, labels[:1])
+    assert joint.tolist() == [HAND_JOINTS[0]] and point[0, 0] < TABLE[0]
+
+
+def test_hand_reach_needs_objects_and_an_action_the_checkpoint_knows():
+    assert hand_reach([], None, NAMES, ("pick up",), HAND_JOINTS) is None
+    assert hand_reach([(cup(), CUP_POSE)], None, ["walk"], ("pick up",), HAND_JOINTS) is None
+    assert hand_reach([(cup(), CUP_POSE)], None, NAMES, (), HAND_JOINTS) is None
+    r = hand_reach([(cup(), CUP_POSE)], None, NAMES, ("pick up",), (HAND_JOINTS[1],))
+    assert r.hands == (HAND_JOINTS[1],) and r.actions == {NAMES.index("pick up")}

@@ -347,3 +347,34 @@ def test_clean_up_variants_equal_runs_with_that_clean_up():
     assert not np.array_equal(both.variants["smoothing"].joints, both.joints)            # the stage does something
     with pytest.raises(ConfigError, match="seam_blend"):
         _generate(loaded, goals, loop=loop, cleanups={"x": dataclasses.replace(loop, seam_blend=0.0)}, **kw)
+
+
+def test_pick_up_episodes_give_the_network_the_hand_goal_it_was_trained_on():
+    """A checkpoint trained with hand goals (mask.p_hand > 0, either wrist) is told, in each
+    pick-up episode, where the nearer wrist goes: a point `palm` out from the cup's surface, at
+    the window's last frame. The oracle predicts what it is given there, so the network's own
+    wrist ends each pick-up episode 3 cm off the cup; without the goal (loop.hand_goal=() or a
+    checkpoint trained without hand goals) it stays where the T-pose holds it."""
+    n = 8                                                                                # cup: r 4 cm, 10 cm tall, 1 cm voxels
+    ii, kk = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    cup_occ = np.repeat((((ii - 3.5) ** 2 + (kk - 3.5) ** 2) <= 3.5 ** 2)[:, None, :], 10, 1)
+    cup = OccupancyGrid.from_dense(cup_occ, [-0.04, 0.0, -0.04], 0.01)
+    cup_pose = np.eye(4)
+    cup_pose[:3, 3] = [0.7, 0.9, 2.0]                     # beside the goal, under the left wrist of a T-pose facing +z
+    cup_pts = (np.argwhere(cup_occ) + 0.5) * 0.01 + cup.origin + cup_pose[:3, 3]         # (N, 3) voxel centres
+    goals = [Goal([0.0, 2.0], "pick up", 3.0)]
+
+    def run(p_hand, hand_goal=("pick up",)):
+        loaded = _loaded(predict_goal=True)
+        loaded.action_names = ["walk", "sit", "pick up"]
+        loaded.mask = MaskConfig(max_transition=2, p_hand=p_hand, hand_joints=HAND_JOINTS)
+        m = _generate(loaded, goals, objects=[(cup, cup_pose)], generator=torch.Generator().manual_seed(0),
+                      sampler=SamplerSettings("ddim", 2), loop=LoopConfig(stall_s=None, hand_goal=hand_goal))
+        assert m.completed, m.goal_outcome
+        ends = np.stack([e.raw[0, -1] for e in m.episodes if e.kind == "act"])           # (A, J, 3)
+        return np.linalg.norm(ends[:, HAND_JOINTS[0], None] - cup_pts[None], axis=-1).min(-1)   # (A,)
+
+    given = run(0.5)
+    assert len(given) >= 2 and np.all((given > 0.03) & (given < 0.03 + 0.01)), given   # 3 cm off the skin (voxel centres +0.5 cm)
+    for off in (run(0.5, ()), run(0.0)):
+        assert np.all(off > 0.3), off

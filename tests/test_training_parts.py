@@ -1,12 +1,19 @@
 import itertools
 
+import numpy as np
 import pytest
 import torch
+from omegaconf import OmegaConf
 
+from motiongen.data.representation import Layout
+from motiongen.data.windows import NormStats
 from motiongen.errors import MotiongenError
+from motiongen.loading.build import acting_hands
 from motiongen.loading.checkpoint import load_checkpoint, save_checkpoint
+from motiongen.skeleton import BODY
 from motiongen.training.data_order import ResumableBatchSampler
 from motiongen.training.ema import EMA
+from tests.helpers import REST
 
 
 def _take(sampler, k):
@@ -61,3 +68,21 @@ def test_ema_is_exponential_average():
     ema.update(m)
     ema.update(m)
     assert torch.allclose(ema.model.weight, torch.full((1, 2), 1 - 0.9 ** 2))
+
+
+def test_acting_hands_names_the_windows_that_end_in_a_hand_action_and_the_wrist_that_reached():
+    L, names = 6, ["walk", "pick up"]
+    joints = np.repeat(np.repeat(REST[None, None], L, 1), 2, 0).astype(np.float32)      # (2, L, 22, 3)
+    joints[0, :, :] += np.linspace(0, 1, L)[:, None, None] * [0.0, 0.0, 1.0]           # walks 1 m: both wrists move with it
+    joints[0, :, 20] += np.linspace(0, 1, L)[:, None] * [0.0, -0.4, 0.2]                # the left wrist reaches down
+    joints[1, :, 21] += np.linspace(0, 1, L)[:, None] * [0.1, 0.0, 0.0]                 # the right wrist moves a little
+    actions = np.zeros((2, L, 2), np.float32)
+    actions[0, -1, 1] = 1.0                                                             # window 0 ends picking up
+    actions[1, :, 0] = 1.0
+    layout, stats = Layout(22), NormStats(np.zeros(66, np.float32), np.ones(66, np.float32))
+    batch = {"motion": torch.from_numpy(joints.reshape(2, L, 66)), "actions": torch.from_numpy(actions)}
+    cfg = OmegaConf.create({"mask": {"p_hand_action": 1.0, "hand_joints": [20, 21]}})
+    acting, wrist = acting_hands(cfg, batch, layout, stats, names)
+    assert acting.tolist() == [True, False] and wrist.tolist() == [20, 21]
+    assert acting_hands(OmegaConf.create({"mask": {}}), batch, layout, stats, names) is None
+    assert BODY.names[20] == "left_wrist"

@@ -25,24 +25,41 @@ class MaskConfig:
     p_goal_y: float = 0.5       # probability of also giving pelvis y (given goal x, z): a seat's height
     p_hand: float = 0.0         # probability of pinning a hand joint (all of x, y, z) at the last frame
     hand_joint: int = 21        # SMPL-X right wrist
+    # The joints a window's hand goal is drawn from, uniformly per window (e.g. [20, 21]: either
+    # wrist, as the sampler gives the hand that reaches for an object); empty: `hand_joint`.
+    hand_joints: tuple = ()
+    # A hand goal, with this probability, for windows whose last frame carries one of
+    # `hand_actions` (the sampler gives one for those actions: `LoopConfig.hand_goal`), on the
+    # wrist that moved most relative to the pelvis over the window (the hand that reaches).
+    # Random hand goals alone (`p_hand`) mostly fall where a hanging hand would be anyway, and
+    # the network learns to ignore them.
+    p_hand_action: float = 0.0
+    hand_actions: tuple = ("pick up",)
     goal_joint: int = 0         # pelvis
     # True: goal entries condition the model and are part of its loss, and samplers keep the
     # model's own prediction there (only transition frames are written into the result), so
     # the goal distance measures the model. False: goals are pinned like transitions (reference).
     predict_goal: bool = True
 
+    @property
+    def hand_goals(self) -> bool:
+        """Whether a model trained with this config takes a hand goal (`LoopConfig.hand_goal`)."""
+        return self.p_hand > 0 or self.p_hand_action > 0
+
 
 def known_mask(batch: int, window: int, num_joints: int, transition: int | Tensor = 0,
                goal_xz: bool | Tensor = False, goal_y: bool | Tensor = False,
-               hand: bool | Tensor = False, hand_joint: int = 21, goal_joint: int = 0,
+               hand: bool | Tensor = False, hand_joint: int | Tensor = 21, goal_joint: int = 0,
                device: torch.device | str = "cpu", channels: int | None = None) -> Tensor:
     """(B, L, D) bool, D = `channels` (default 3J). Scalars apply to the whole batch; (B,) tensors per sample.
 
     transition k: first k frames, all channels. goal_xz / goal_y: last frame, ``goal_joint``
-    x, z / y. hand: last frame, ``hand_joint`` x, y, z.
+    x, z / y. hand: last frame, ``hand_joint`` x, y, z (one joint, or (B,) one per sample).
     """
     B, L, J = batch, window, num_joints
-    used = [goal_joint] + ([hand_joint] if bool(torch.as_tensor(hand).any()) else [])
+    hand_j = torch.as_tensor(hand_joint, device=device).to(torch.long).expand(B)              # (B,)
+    has_hand = torch.as_tensor(hand, device=device).to(torch.bool).expand(B)                  # (B,)
+    used = [goal_joint] + [int(j) for j in hand_j[has_hand].unique()]
     for j in used:
         if not 0 <= j < J:
             raise ConfigError(f"mask joint {j} outside 0..{J - 1}")
@@ -57,16 +74,19 @@ def known_mask(batch: int, window: int, num_joints: int, transition: int | Tenso
     mask[:, -1, g + 0] |= as_b(goal_xz, torch.bool)
     mask[:, -1, g + 2] |= as_b(goal_xz, torch.bool)
     mask[:, -1, g + 1] |= as_b(goal_y, torch.bool)
-    if len(used) > 1:
-        h = 3 * hand_joint
-        mask[:, -1, h:h + 3] |= as_b(hand, torch.bool)[:, None]
+    rows = torch.nonzero(has_hand)[:, 0]                                                     # samples with a hand goal
+    for c in range(3):
+        mask[rows, -1, 3 * hand_j[rows] + c] = True
     return mask
 
 
 def sample_known_mask(batch: int, window: int, num_joints: int, cfg: MaskConfig | None = None,
                       generator: torch.Generator | None = None,
-                      device: torch.device | str = "cpu", channels: int | None = None) -> Tensor:
-    """Random training masks (B, L, D) bool drawn per sample from ``cfg``."""
+                      device: torch.device | str = "cpu", channels: int | None = None,
+                      action_hand: tuple[Tensor, Tensor] | None = None) -> Tensor:
+    """Random training masks (B, L, D) bool drawn per sample from ``cfg``. action_hand: (acting
+    (B,) bool, wrist (B,) long) the windows that end in a hand action and their reaching wrist
+    (`cfg.p_hand_action`)."""
     cfg = cfg if cfg is not None else MaskConfig()
     if cfg.max_transition >= window:
         raise ConfigError(f"mask.max_transition {cfg.max_transition} must be < window {window}")
@@ -78,8 +98,17 @@ def sample_known_mask(batch: int, window: int, num_joints: int, cfg: MaskConfig 
     goal_xz = u[1] < cfg.p_goal_xz
     goal_y = goal_xz & (u[2] < cfg.p_goal_y)
     hand = u[3] < cfg.p_hand
+    hand_joint = torch.full((batch,), cfg.hand_joint, device=gen_device)                    # (B,)
+    if len(cfg.hand_joints) > 0:
+        # drawn only here: configs without a choice of hands keep the generator's sequence
+        pick = torch.randint(0, len(cfg.hand_joints), (batch,), generator=generator, device=gen_device)
+        hand_joint = torch.as_tensor(list(cfg.hand_joints), device=gen_device)[pick]
+    if cfg.p_hand_action > 0 and action_hand is not None:
+        acting, wrist = (a.to(gen_device) for a in action_hand)
+        given = acting & (torch.rand(batch, generator=generator, device=gen_device) < cfg.p_hand_action)
+        hand, hand_joint = hand | given, torch.where(given, wrist, hand_joint)
     return known_mask(batch, window, num_joints, k.to(device), goal_xz.to(device), goal_y.to(device),
-                      hand.to(device), cfg.hand_joint, cfg.goal_joint, device, channels)
+                      hand.to(device), hand_joint.to(device), cfg.goal_joint, device, channels)
 
 
 def transition_mask(mask: Tensor) -> Tensor:

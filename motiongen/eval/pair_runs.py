@@ -80,13 +80,21 @@ def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler
     out, raw = measure(motion, ctx, pair, cfg, meshes), measure(motion, ctx, pair, cfg, meshes, raw=True)
     ablation = {s: measure(motion.variants[s], ctx, pair, cfg, meshes) for s in after}
     for s in stages:
-        if s in IN_LOOP_STAGES:
+        if s == "hand_goal" and not gives_hand_goals(loaded, pair, loop):
+            ablation[s] = out                      # nothing to switch off: the same episodes
+        elif s in IN_LOOP_STAGES:
             # The stage shapes what the next episode sees: sample again, same pair, same noise.
             again, _ = sample_pair(loaded, ctx, pair, cfg, sampler, body_model,
                                    dataclasses.replace(loop, **CLEANUP_STAGES[s]))
             ablation[s] = measure(again, ctx, pair, cfg, meshes)
     return PairResult(pair, out.per_sample, raw.per_sample, out.apd, motion.joints, out.kept, raw.kept,
                       out.completed, wall, {s: ablation[s] for s in stages})
+
+
+def gives_hand_goals(loaded, pair: Pair, loop) -> bool:
+    """Whether the loop tells the network a hand goal anywhere on this pair's route: a
+    checkpoint trained with them and a goal whose action gets one (`LoopConfig.hand_goal`)."""
+    return loaded.mask.hand_goals and any(g.action in loop.hand_goal for g in pair.route.goals)
 
 
 def measure(motion: Motion, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, meshes: BodyMeshes | None,

@@ -59,10 +59,11 @@ from motiongen.body.solve import MotionBody
 from motiongen.errors import ConfigError
 from motiongen.routing import WalkableMap
 from motiongen.sampling.cleanup import CleanMotion, clean_up
-from motiongen.sampling.conditioning import condition_episode
+from motiongen.sampling.conditioning import condition_episode, loop_hand_reach
 from motiongen.sampling.denoising import denoise
 from motiongen.sampling.episode import EpisodeState, LoopSpec, Window, drop_warmup, loop_spec, record_episode
 from motiongen.sampling.goals import Route
+from motiongen.sampling.interactions import hand_goals
 from motiongen.sampling.progress import (Progress, Targets, advance, goal_outcomes, goal_plan, next_targets,
                                          output_arrival_errors, shortfall)
 from motiongen.sampling.projection import project_window
@@ -101,6 +102,7 @@ def generate(loaded, scene=None, *, route: Route, walkable: WalkableMap | None =
         body_model = load_body_model()
     plan = goal_plan(route, loaded.action_names, scene, loop, spec, loaded.mask.p_goal_y, walkable)
     query = SceneQuery(loaded, scene, objects, spec.device)
+    reach = loop_hand_reach(loaded, objects, scene, loop)
     state, progress = EpisodeState(), Progress.start(num_samples, len(route.goals))
     body_model = body_model if loop.project else None          # None: no body, no final solve
 
@@ -117,6 +119,8 @@ def generate(loaded, scene=None, *, route: Route, walkable: WalkableMap | None =
     n_ep = 0
     while not progress.finished.all() and n_ep < loop.max_episodes:
         targets = next_targets(progress, plan, state.pelvis_now())
+        if reach is not None:
+            targets.hand, targets.hand_point = hand_goals(reach, state.tail.joints, targets.label)
         before = state.n_frames
         run_episode(spec, loaded, query, body_model, state, targets)
         n_ep += 1

@@ -18,6 +18,7 @@ from motiongen.diffusion.masks import known_mask
 from motiongen.geometry import canonical_frame, invert_rigid, transform_points
 from motiongen.models import Condition
 from motiongen.sampling.episode import LoopSpec, Tail
+from motiongen.sampling.interactions import HandReach, hand_reach
 from motiongen.sampling.progress import Targets
 from motiongen.sampling.scene_query import SceneQuery
 from motiongen.skeleton import PELVIS
@@ -47,8 +48,12 @@ def condition_episode(spec: LoopSpec, loaded, query: SceneQuery, tail: Tail | No
     inv = invert_rigid(to_world)                                                             # world -> local
     local_t = local_target(inv, t.target, spec.reach)
     known, give_y = known_values(loaded.stats, loaded.layout, inv, tail, local_t, t.height, L)
+    hand = t.hand if t.hand is not None else np.full(S, -1, np.int64)                        # (S,)
+    if (hand >= 0).any():
+        hand_values(known, loaded.stats, inv, hand, t.hand_point)
     mask = known_mask(S, L, loaded.joint_set.num_joints, transition=pinned, goal_xz=True,
-                      goal_y=torch.from_numpy(give_y), goal_joint=PELVIS, channels=D)         # (S, L, D)
+                      goal_y=torch.from_numpy(give_y), hand=torch.from_numpy(hand >= 0),
+                      hand_joint=torch.from_numpy(np.maximum(hand, 0)), goal_joint=PELVIS, channels=D)   # (S, L, D)
     labels = np.repeat(t.label[:, None], L, 1)                                               # (S, L)
     if pinned:
         labels[:, :pinned] = tail.labels
@@ -88,6 +93,18 @@ def known_values(stats, layout, inv: np.ndarray, tail: Tail | None, local_t: np.
     return known, give_y
 
 
+def hand_values(known: np.ndarray, stats, inv: np.ndarray, hand: np.ndarray, point: np.ndarray) -> None:
+    """Write each sample's wrist goal (joint hand (S,), -1 none; world point (S, 3)) into the
+    last frame of known (S, L, D) normalised, in the window frame (absolute layout: joint j at
+    channels 3j..3j+2)."""
+    D = known.shape[-1]
+    for s in np.flatnonzero(hand >= 0):
+        c = slice(3 * hand[s], 3 * hand[s] + 3)
+        v = np.zeros(D, np.float32)
+        v[c] = transform_points(inv[s], point[s][None])[0]
+        known[s, -1, c] = stats.normalize(v[None])[0, c]
+
+
 def goal_channels(stats, D: int, local_xz: np.ndarray) -> np.ndarray:
     """Window-frame pelvis x, z (S, 2) in normalised units (S, 2): stats.normalize acts per
     channel, so normalising a full vector that holds only the pelvis x, z gives the right
@@ -113,3 +130,14 @@ def one_hot(labels: np.ndarray, A: int) -> np.ndarray:
     s_idx, f_idx = np.nonzero(labels >= 0)
     act[s_idx, f_idx, labels[s_idx, f_idx]] = 1.0
     return act
+
+
+def loop_hand_reach(loaded, objects, scene, loop) -> HandReach | None:
+    """The in-loop hand goal of a call (`LoopConfig.hand_goal`): only for checkpoints trained to
+    take one (mask.p_hand or mask.p_hand_action > 0) on absolute joints, where the hand channels are the wrist's
+    position in the window frame; with objects placed. The wrists it may give a goal for are
+    the ones it was trained on."""
+    m = loaded.mask
+    if not loop.hand_goal or not objects or not m.hand_goals or loaded.layout.representation != "absolute":
+        return None
+    return hand_reach(objects, scene, list(loaded.action_names), loop.hand_goal, tuple(m.hand_joints) or (m.hand_joint,))

@@ -29,6 +29,10 @@ _NEAREST = 16
 HAND_SPAN = (0.06, 0.12, 0.18)
 # How far (m) those points must stay out of every object.
 FINGER_CLEARANCE = 0.01
+# How far (m) a wrist may be from the object when an episode gives it the hand goal: an arm's
+# length and a lean from where the body stands at the goal (an object on the floor is ~0.8 m
+# below a standing wrist); farther, the goal would pull the body off its pelvis target.
+HAND_GOAL_REACH = 1.0
 
 
 class ObjectSurface(NamedTuple):
@@ -122,6 +126,23 @@ def forearm_direction(joints: np.ndarray, wrist: int) -> np.ndarray:
     return d / max(float(np.linalg.norm(d)), 1e-9)
 
 
+def nearest_reach(joints: np.ndarray, hands, cand: np.ndarray, surfaces: list[ObjectSurface]):
+    """Over the frames joints (n, J, 3): the hand (of the joint indices `hands`) whose mean
+    position is closest to a wrist candidate (M, 3) clear for it (`hand_clear` along its own
+    forearm), as (distance m, hand joint, candidate (3,)); None when no candidate is clear."""
+    best = None
+    for h in hands:
+        mean = joints[:, h].mean(0)                                                        # (3,)
+        ok = cand[hand_clear(cand, forearm_direction(joints, h), surfaces)]
+        if not len(ok):
+            continue
+        d = np.linalg.norm(ok - mean, axis=-1)
+        i = int(np.argmin(d))
+        if best is None or d[i] < best[0]:
+            best = (float(d[i]), int(h), ok[i])
+    return best
+
+
 def reach_targets(joints: np.ndarray, labels: np.ndarray, action: int, hands, cand: np.ndarray,
                   ramp: int = 8, max_dist: float = 0.5, surfaces: list[ObjectSurface] | None = None):
     """Where a hand must be for each run of frames labelled `action` (a hand interaction):
@@ -130,37 +151,61 @@ def reach_targets(joints: np.ndarray, labels: np.ndarray, action: int, hands, ca
     metres out from an object's surface, out of every object and the scene).
     surfaces: the objects; given, a candidate where the hand along the run's forearm would be
     in one is dropped for that hand (`hand_clear`).
-    Per run: the hand closest to a candidate, and that candidate. Weights ramp in and out over
-    `ramp` frames so the reach is a movement, not a jump. A hand farther than `max_dist` from
-    every candidate is left alone: pulling it there would drag the whole body. Returns
-    (frames, joints, points, weights) or None when nothing is in reach, or no wrist position
-    is free."""
+    Per run: the hand closest to a candidate, and that candidate (`nearest_reach`). Weights
+    ramp in and out over `ramp` frames so the reach is a movement, not a jump. A hand farther
+    than `max_dist` from every candidate is left alone: pulling it there would drag the whole
+    body. Returns (frames, joints, points, weights) or None when nothing is in reach, or no
+    wrist position is free."""
     if not len(cand):
         return None
     frames, js, ps, ws = [], [], [], []
     for a, b in true_runs(labels == action):
-        best = None
-        for h in hands:
-            mean = joints[a:b, h].mean(0)                                                  # (3,)
-            ok = cand[hand_clear(cand, forearm_direction(joints[a:b], h), surfaces or [])]
-            if not len(ok):
-                continue
-            d = np.linalg.norm(ok - mean, axis=-1)
-            i = int(np.argmin(d))
-            if best is None or d[i] < best[0]:
-                best = (d[i], h, ok[i])
-        if best is None:
+        best = nearest_reach(joints[a:b], hands, cand, surfaces or [])
+        if best is None or best[0] > max_dist:
             continue
-        dist, h, target = best
-        if dist > max_dist:
-            continue
+        _, h, target = best
         n = b - a
-        w = ramp_weights(n, ramp)
         frames.append(np.arange(a, b)), js.append(np.full(n, h)), ps.append(np.repeat(target[None], n, 0))
-        ws.append(w)
+        ws.append(ramp_weights(n, ramp))
     if not frames:
         return None
     return np.concatenate(frames), np.concatenate(js), np.concatenate(ps), np.concatenate(ws)
+
+
+class HandReach(NamedTuple):
+    """What the in-loop hand goal needs, fixed for one `generate` call: where a wrist may be on
+    the placed objects, the wrists the checkpoint takes a goal for, and the actions that get one."""
+
+    cand: np.ndarray                   # (M, 3) `wrist_candidates`
+    surfaces: list[ObjectSurface]
+    hands: tuple[int, ...]             # wrist joint indices
+    actions: frozenset[int]            # action indices whose episodes get a hand goal
+
+
+def hand_reach(objects, scene, names, actions, hands, palm: float = 0.03) -> HandReach | None:
+    """The `HandReach` of a call: objects [(OccupancyGrid, pose)], names the checkpoint's
+    action vocabulary, actions the names that get a hand goal; None when none applies."""
+    acts = frozenset(names.index(a) for a in actions if a in names)
+    surfaces = [s for s in object_surfaces(objects) if len(s.centres)] if acts and hands else []
+    if not surfaces:
+        return None
+    cand = wrist_candidates(surfaces, palm, scene)
+    return HandReach(cand, surfaces, tuple(hands), acts) if len(cand) else None
+
+
+def hand_goals(reach: HandReach, joints: np.ndarray, labels: np.ndarray,
+               max_dist: float = HAND_GOAL_REACH) -> tuple[np.ndarray, np.ndarray]:
+    """Each sample's hand goal for an episode labelled `labels` (S,), from its last frames
+    joints (S, k, J, 3) world: the hand nearer a clear wrist candidate and that candidate
+    (`nearest_reach`), where the label is a hand action and the candidate within `max_dist`.
+    Returns (joint (S,) int, -1 = no goal; point (S, 3) world, NaN where none)."""
+    S = joints.shape[0]
+    joint, point = np.full(S, -1, np.int64), np.full((S, 3), np.nan)
+    for s in np.flatnonzero(np.isin(labels, list(reach.actions))):
+        best = nearest_reach(joints[s], reach.hands, reach.cand, reach.surfaces)
+        if best is not None and best[0] <= max_dist:
+            joint[s], point[s] = best[1], best[2]
+    return joint, point
 
 
 def hand_targets(joints: np.ndarray, labels: np.ndarray, names, hand_actions, objects, scene=None,

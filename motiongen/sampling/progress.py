@@ -115,6 +115,8 @@ class Targets:
     label: np.ndarray              # (S,) int action index over the new frames
     chosen: np.ndarray | None = None   # (S,) int subgoal targeted by walking samples, -1 others
     height: np.ndarray | None = None   # (S,) pelvis height at the target where finite
+    hand: np.ndarray | None = None     # (S,) wrist joint given a goal at the window's last frame, -1 = none
+    hand_point: np.ndarray | None = None   # (S, 3) world position of that wrist goal
 
     @classmethod
     def stand(cls, xz, label: int, S: int) -> "Targets":

@@ -66,6 +66,11 @@ class LoopConfig:
     # Actions done with a hand on the nearest placed object: the final solve puts the nearer
     # hand on it over the frames so labelled. () leaves hands where the network put them.
     hand_actions: tuple[str, ...] = ("pick up",)
+    # Actions whose episodes tell the network where the hand goes: the wrist nearer the nearest
+    # placed object, at a point `palm` out from its surface, as a goal at the window's last frame
+    # (the hand goal the checkpoint was trained on with mask.p_hand > 0; others ignore it).
+    # The network reaches for the object itself; () = no hand goal.
+    hand_goal: tuple[str, ...] = ("pick up",)
     # Actions done on a surface (a seat, a bed): while acting, the goal also gives the pelvis
     # height, `seat_offset` m above the top of the furniture under the goal (the pelvis joint of
     # a seated SMPL-X body; the synthetic data's median is 0.095). Needs a checkpoint trained
@@ -90,10 +95,11 @@ CLEANUP_STAGES: dict[str, dict] = {
     "foot_lock": {"foot_lock": False},
     "clearance": {"swing_clearance": False},
     "smoothing": {"smooth": 0.0},
+    "hand_goal": {"hand_goal": ()},
     "hand_reach": {"hand_actions": ()},
     "seat_height": {"seat_shift": False},
 }
-IN_LOOP_STAGES = ("projection", "seam_blend")
+IN_LOOP_STAGES = ("projection", "seam_blend", "hand_goal")
 # The LoopConfig fields only the clean-up after the last episode reads.
 POST_LOOP_FIELDS = frozenset({"foot_lock", "swing_clearance", "smooth", "hand_actions", "seat_shift",
                               "solve_smoothness"})

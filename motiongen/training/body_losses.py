@@ -15,6 +15,10 @@ Weighting over noise levels (`train.geometry_weighting`): `uniform`, or `signal`
 weighted by ᾱ_t, the share of signal in its input. At high noise the best prediction is the
 mean of many motions, whose bones are shorter and whose feet move less than any one motion's;
 asking it for one body's geometry there pulls it away from the mean the diffusion loss wants.
+
+Over training (`train.geometry_start`, `train.geometry_ramp`): both weights are 0 before step
+`start` and grow linearly to full over the next `ramp` steps, so that the diffusion loss has
+learnt the task (the goals) before the geometry asks for one body.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ class BodyLosses:
     noise_weights (T,): each window's weight by its diffusion step (None: all 1)."""
 
     def __init__(self, layout: Layout, stats: NormStats, parents, fps: float, w_bone: float, w_foot: float,
-                 noise_weights: torch.Tensor | None = None):
+                 noise_weights: torch.Tensor | None = None, start: int = 0, ramp: int = 0):
         if w_foot > 0 and not layout.num_contacts:
             raise ConfigError("train.w_planted_feet needs stance channels (window.contact_joints)")
         self.layout, self.stats, self.fps = layout, stats, float(fps)
@@ -40,6 +44,14 @@ class BodyLosses:
         self.parent = [parents[j] for j in self.child]
         self.w_bone, self.w_foot = float(w_bone), float(w_foot)
         self.noise_weights = noise_weights        # (T,) per diffusion step, or None: uniform
+        self.start, self.ramp = int(start), int(ramp)
+        self.step = 0                             # the training step, set by the loop before each step
+
+    def scale(self) -> float:
+        """The share of the full weights at `self.step`: 0 before `start`, then linear over `ramp` steps."""
+        if self.step < self.start:
+            return 0.0
+        return min(1.0, (self.step - self.start + 1) / self.ramp) if self.ramp > 0 else 1.0
 
     def __call__(self, window: torch.Tensor, x0: torch.Tensor, free: torch.Tensor, t: torch.Tensor) -> dict:
         j_hat, _ = self.layout.decode(self.stats.denormalize(window))                    # (B, L, J, 3)
@@ -47,11 +59,11 @@ class BodyLosses:
         frames = free.amax(-1)                                                            # (B, L) any free entry
         if self.noise_weights is not None:
             frames = frames * self.noise_weights.to(frames)[t][:, None]                   # (B, L)
-        out = {}
+        out, scale = {}, self.scale()
         if self.w_bone > 0:
-            out["bone_length"] = (self.w_bone, self._bones(j_hat, j, frames))
+            out["bone_length"] = (scale * self.w_bone, self._bones(j_hat, j, frames))
         if self.w_foot > 0:
-            out["planted_feet"] = (self.w_foot, self._feet(j_hat, planted, frames))
+            out["planted_feet"] = (scale * self.w_foot, self._feet(j_hat, planted, frames))
         return out
 
     def _bones(self, j_hat, j, frames):

@@ -32,6 +32,8 @@ class TrainConfig:
     w_bone_length: float = 0.0
     w_planted_feet: float = 0.0
     geometry_weighting: str = "uniform"   # uniform | signal: each window by its share of signal ᾱ_t (body_losses.py)
+    geometry_start: int = 0          # the step the two terms start at (0 before it) ...
+    geometry_ramp: int = 0           # ... and the steps over which they grow linearly to full weight
     log_every: int = 50
     val_every: int = 500             # 0 disables validation
     val_batches: int = 4
@@ -52,7 +54,7 @@ class TrainConfig:
         r = require_range
         for key in ("max_steps", "batch_size", "log_every", "ckpt_every", "val_batches"):
             r(f"train.{key}", getattr(self, key), 1, integer=True)
-        for key in ("warmup_steps", "val_every", "figure_every", "keep_last", "num_workers", "threads"):
+        for key in ("warmup_steps", "geometry_start", "geometry_ramp", "val_every", "figure_every", "keep_last", "num_workers", "threads"):
             r(f"train.{key}", getattr(self, key), 0, integer=True)
         r("train.lr", self.lr, 0, lo_open=True)   # no ceiling: lr=1e20 is how a diverging run is reproduced
         for key in ("weight_decay", "grad_clip", "pelvis_loss_weight", "w_bone_length", "w_planted_feet"):

@@ -25,7 +25,8 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from motiongen.cli import Interrupted
 from motiongen.diffusion.masks import loss_mask
 from motiongen.errors import MotiongenError
-from motiongen.loading.build import batch_condition, goal_predicted, known_mask_for_batch, loss_channel_weights
+from motiongen.loading.build import (acting_hands, batch_condition, goal_predicted, known_mask_for_batch,
+                                     loss_channel_weights)
 from motiongen.loading.checkpoint import remove_orphan_temps, save_checkpoint
 from motiongen.training import distributed as dd
 from motiongen.training.body_losses import BodyLosses
@@ -114,7 +115,7 @@ def body_losses(run: Run) -> BodyLosses | None:
         return None
     weights = run.diffusion.alphas_cumprod if tc.geometry_weighting == "signal" else None   # (T,)
     return BodyLosses(ws.layout, ws.stats, run.ds.joint_set.parents, run.ds.fps / ws.cfg.stride,
-                      tc.w_bone_length, tc.w_planted_feet, weights)
+                      tc.w_bone_length, tc.w_planted_feet, weights, tc.geometry_start, tc.geometry_ramp)
 
 
 def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
@@ -124,9 +125,13 @@ def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
     x0 = batch["motion"].to(device, non_blocking=True)                        # (B, L, D)
     B = x0.shape[0]
     cond = batch_condition(batch, device, run.tc, gen, train=True)
-    known_mask = known_mask_for_batch(run.cfg, x0.shape, run.ds.joint_set.num_joints, device, gen)
+    known_mask = known_mask_for_batch(run.cfg, x0.shape, run.ds.joint_set.num_joints, device, gen,
+                                      acting_hands(run.cfg, batch, run.train_set.layout, run.train_set.stats,
+                                                   run.ds.action_names))
     t = torch.randint(0, run.diffusion.num_timesteps, (B,), device=device, generator=gen)
     noise = torch.randn(x0.shape, device=device, generator=gen)
+    if loop.body is not None:
+        loop.body.step = run.step
     with loop.autocast:
         losses = run.diffusion.training_losses(run.net, x0, t, cond, known=x0, known_mask=known_mask, noise=noise,
                                                channel_weights=loop.weights,
