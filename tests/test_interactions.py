@@ -202,4 +202,4 @@ def test_hand_reach_needs_objects_and_an_action_the_checkpoint_knows():
     assert hand_reach([(cup(), CUP_POSE)], None, ["walk"], ("pick up",), HAND_JOINTS) is None
     assert hand_reach([(cup(), CUP_POSE)], None, NAMES, (), HAND_JOINTS) is None
     r = hand_reach([(cup(), CUP_POSE)], None, NAMES, ("pick up",), (HAND_JOINTS[1],))
-    assert r.hands == (HAND_JOINTS[1],) and r.actions == {NAMES.index("pick up")}
+    assert r.hands == (HAND_JOINTS[1],) and r.actions == (NAMES.index("pick up"),)

@@ -3,10 +3,10 @@ import itertools
 import numpy as np
 import pytest
 import torch
-from omegaconf import OmegaConf
 
 from motiongen.data.representation import Layout
 from motiongen.data.windows import NormStats
+from motiongen.diffusion import MaskConfig
 from motiongen.errors import MotiongenError
 from motiongen.loading.build import acting_hands
 from motiongen.loading.checkpoint import load_checkpoint, save_checkpoint
@@ -81,8 +81,7 @@ def test_acting_hands_names_the_windows_that_end_in_a_hand_action_and_the_wrist_
     actions[1, :, 0] = 1.0
     layout, stats = Layout(22), NormStats(np.zeros(66, np.float32), np.ones(66, np.float32))
     batch = {"motion": torch.from_numpy(joints.reshape(2, L, 66)), "actions": torch.from_numpy(actions)}
-    cfg = OmegaConf.create({"mask": {"p_hand_action": 1.0, "hand_joints": [20, 21]}})
-    acting, wrist = acting_hands(cfg, batch, layout, stats, names)
+    acting, wrist = acting_hands(MaskConfig(p_hand_action=1.0, hand_joints=(20, 21)), batch, layout, stats, names)
     assert acting.tolist() == [True, False] and wrist.tolist() == [20, 21]
-    assert acting_hands(OmegaConf.create({"mask": {}}), batch, layout, stats, names) is None
+    assert acting_hands(MaskConfig(), batch, layout, stats, names) is None
     assert BODY.names[20] == "left_wrist"

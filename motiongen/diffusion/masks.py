@@ -46,6 +46,11 @@ class MaskConfig:
         """Whether a model trained with this config takes a hand goal (`LoopConfig.hand_goal`)."""
         return self.p_hand > 0 or self.p_hand_action > 0
 
+    @property
+    def goal_hands(self) -> tuple[int, ...]:
+        """The joints a hand goal may go to: `hand_joints`, else `hand_joint`."""
+        return tuple(self.hand_joints) or (self.hand_joint,)
+
 
 def known_mask(batch: int, window: int, num_joints: int, transition: int | Tensor = 0,
                goal_xz: bool | Tensor = False, goal_y: bool | Tensor = False,

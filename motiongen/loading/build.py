@@ -79,18 +79,17 @@ def known_mask_for_batch(cfg, shape, num_joints: int, device, generator, action_
                              action_hand=action_hand).to(device)
 
 
-def acting_hands(cfg, batch: dict, layout, stats, action_names) -> tuple[torch.Tensor, torch.Tensor] | None:
-    """(acting (B,) bool, wrist (B,) long) for `mask.p_hand_action`: the windows whose last frame
-    carries a `mask.hand_actions` label, and of the wrists a hand goal may go to
-    (`mask.hand_joints`, else `mask.hand_joint`) the one that moved most relative to the pelvis
-    over the window. None when the config gives no such goals."""
-    m = mask_config(cfg)
+def acting_hands(m: MaskConfig, batch: dict, layout, stats, action_names) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """(acting (B,) bool, wrist (B,) long) for `mask.p_hand_action` of the mask config m: the
+    windows whose last frame carries a `mask.hand_actions` label, and of the wrists a hand goal
+    may go to (`MaskConfig.goal_hands`) the one that moved most relative to the pelvis over the
+    window. None when the config gives no such goals."""
     idx = [list(action_names).index(a) for a in m.hand_actions if a in action_names]
     if m.p_hand_action <= 0 or not idx:
         return None
     acting = batch["actions"][:, -1, idx].amax(-1) > 0                                        # (B,)
     joints, _ = layout.decode(stats.denormalize(batch["motion"]))                            # (B, L, J, 3)
-    hands = torch.as_tensor(list(m.hand_joints) or [m.hand_joint])                           # (H,)
+    hands = torch.as_tensor(m.goal_hands)                                                     # (H,)
     rel = joints[:, :, hands] - joints[:, :, :1]                                              # (B, L, H, 3) from the pelvis
     moved = (rel[:, -1] - rel[:, 0]).norm(dim=-1)                                             # (B, H)
     return acting, hands[moved.argmax(-1)]

@@ -49,8 +49,7 @@ def condition_episode(spec: LoopSpec, loaded, query: SceneQuery, tail: Tail | No
     local_t = local_target(inv, t.target, spec.reach)
     known, give_y = known_values(loaded.stats, loaded.layout, inv, tail, local_t, t.height, L)
     hand = t.hand if t.hand is not None else np.full(S, -1, np.int64)                        # (S,)
-    if (hand >= 0).any():
-        hand_values(known, loaded.stats, inv, hand, t.hand_point)
+    hand_values(known, loaded.stats, inv, hand, t.hand_point)
     mask = known_mask(S, L, loaded.joint_set.num_joints, transition=pinned, goal_xz=True,
                       goal_y=torch.from_numpy(give_y), hand=torch.from_numpy(hand >= 0),
                       hand_joint=torch.from_numpy(np.maximum(hand, 0)), goal_joint=PELVIS, channels=D)   # (S, L, D)
@@ -140,4 +139,4 @@ def loop_hand_reach(loaded, objects, scene, loop) -> HandReach | None:
     m = loaded.mask
     if not loop.hand_goal or not objects or not m.hand_goals or loaded.layout.representation != "absolute":
         return None
-    return hand_reach(objects, scene, list(loaded.action_names), loop.hand_goal, tuple(m.hand_joints) or (m.hand_joint,))
+    return hand_reach(objects, scene, list(loaded.action_names), loop.hand_goal, m.goal_hands)

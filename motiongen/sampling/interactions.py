@@ -173,24 +173,27 @@ def reach_targets(joints: np.ndarray, labels: np.ndarray, action: int, hands, ca
 
 
 class HandReach(NamedTuple):
-    """What the in-loop hand goal needs, fixed for one `generate` call: where a wrist may be on
-    the placed objects, the wrists the checkpoint takes a goal for, and the actions that get one."""
+    """Where a hand may go on the placed objects, fixed for one `generate` call: shared by the
+    in-loop hand goal and the clean-up's hand reach."""
 
-    cand: np.ndarray                   # (M, 3) `wrist_candidates`
+    cand: np.ndarray                   # (M, 3) `wrist_candidates` (M may be 0)
     surfaces: list[ObjectSurface]
     hands: tuple[int, ...]             # wrist joint indices
-    actions: frozenset[int]            # action indices whose episodes get a hand goal
+    actions: tuple[int, ...]           # action indices that get a hand, in the order named
 
 
 def hand_reach(objects, scene, names, actions, hands, palm: float = 0.03) -> HandReach | None:
     """The `HandReach` of a call: objects [(OccupancyGrid, pose)], names the checkpoint's
-    action vocabulary, actions the names that get a hand goal; None when none applies."""
-    acts = frozenset(names.index(a) for a in actions if a in names)
-    surfaces = [s for s in object_surfaces(objects) if len(s.centres)] if acts and hands else []
-    if not surfaces:
+    action vocabulary, actions the names that get a hand, a wrist `palm` metres out from an
+    object's surface (the wrist joint sits that far from the palm's skin), out of every object
+    and of `scene`. None without objects, hands or such an action."""
+    acts = tuple(names.index(a) for a in actions if a in names)
+    if not acts or not objects or not hands:
         return None
-    cand = wrist_candidates(surfaces, palm, scene)
-    return HandReach(cand, surfaces, tuple(hands), acts) if len(cand) else None
+    surfaces = [s for s in object_surfaces(objects) if len(s.centres)]
+    # The same for every sample and action: computed once (a k-d tree over every object's voxels).
+    cand = wrist_candidates(surfaces, palm, scene) if surfaces else np.zeros((0, 3))       # (M, 3)
+    return HandReach(cand, surfaces, tuple(hands), acts)
 
 
 def hand_goals(reach: HandReach, joints: np.ndarray, labels: np.ndarray,
@@ -211,18 +214,15 @@ def hand_goals(reach: HandReach, joints: np.ndarray, labels: np.ndarray,
 def hand_targets(joints: np.ndarray, labels: np.ndarray, names, hand_actions, objects, scene=None,
                  palm: float = 0.03) -> list | None:
     """Per sample, the hand targets of the frames labelled with a hand action (None: none): a
-    wrist `palm` metres out from an object's surface (the wrist joint sits that far from the
-    palm's skin), out of every object and of `scene`."""
-    acts = [names.index(a) for a in hand_actions if a in names]
-    if not acts or not objects:
+    wrist where `hand_reach` allows one, for the hand nearer it over each run (`reach_targets`)."""
+    reach = hand_reach(objects, scene, names, hand_actions, HAND_JOINTS, palm)
+    if reach is None:
         return None
-    surfaces = [s for s in object_surfaces(objects) if len(s.centres)]
-    # The same for every sample and action: computed once (a k-d tree over every object's voxels).
-    cand = wrist_candidates(surfaces, palm, scene) if surfaces else np.zeros((0, 3))       # (M, 3)
     out = []
     for s in range(joints.shape[0]):
-        parts = [r for a in acts
-                 if (r := reach_targets(joints[s], labels[s], a, HAND_JOINTS, cand, surfaces=surfaces)) is not None]
+        parts = [r for a in reach.actions
+                 if (r := reach_targets(joints[s], labels[s], a, reach.hands, reach.cand,
+                                        surfaces=reach.surfaces)) is not None]
         out.append(merge_targets(*parts))
     return out
 

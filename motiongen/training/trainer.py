@@ -23,10 +23,10 @@ from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from motiongen.cli import Interrupted
-from motiongen.diffusion.masks import loss_mask
+from motiongen.diffusion.masks import MaskConfig, loss_mask
 from motiongen.errors import MotiongenError
 from motiongen.loading.build import (acting_hands, batch_condition, goal_predicted, known_mask_for_batch,
-                                     loss_channel_weights)
+                                     loss_channel_weights, mask_config)
 from motiongen.loading.checkpoint import remove_orphan_temps, save_checkpoint
 from motiongen.training import distributed as dd
 from motiongen.training.body_losses import BodyLosses
@@ -56,6 +56,7 @@ class _Loop:
     bar: tqdm | None
     nonfinite: torch.Tensor                 # () bool: a non-finite loss or gradient so far
     body: BodyLosses | None                 # geometry on the prediction (train.w_bone_length, w_planted_feet)
+    mask: MaskConfig                        # the training masks' config, read once
     sums: dict[str, torch.Tensor] = field(default_factory=dict)   # loss terms since the last log
     t_log: float = field(default_factory=time.perf_counter)
     n_log: int = 0                          # samples since the last log, all ranks
@@ -105,7 +106,7 @@ def _start_loop(run: Run) -> _Loop:
         # A bar only on a terminal: redirected, its redraws would pile up in one line of the file.
         bar = tqdm(total=tc.max_steps, initial=run.step, desc="train", dynamic_ncols=True)
     nonfinite = torch.zeros((), dtype=torch.bool, device=run.device)
-    return _Loop(batches, autocast, weights, predict_goal, bar, nonfinite, body_losses(run))
+    return _Loop(batches, autocast, weights, predict_goal, bar, nonfinite, body_losses(run), mask_config(run.cfg))
 
 
 def body_losses(run: Run) -> BodyLosses | None:
@@ -126,7 +127,7 @@ def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
     B = x0.shape[0]
     cond = batch_condition(batch, device, run.tc, gen, train=True)
     known_mask = known_mask_for_batch(run.cfg, x0.shape, run.ds.joint_set.num_joints, device, gen,
-                                      acting_hands(run.cfg, batch, run.train_set.layout, run.train_set.stats,
+                                      acting_hands(loop.mask, batch, run.train_set.layout, run.train_set.stats,
                                                    run.ds.action_names))
     t = torch.randint(0, run.diffusion.num_timesteps, (B,), device=device, generator=gen)
     noise = torch.randn(x0.shape, device=device, generator=gen)
