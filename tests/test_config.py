@@ -112,6 +112,7 @@ def test_bad_values_are_config_errors_naming_the_key():
 OUT_OF_RANGE = [
     ("train", ["train.ema_decay=1.5"], "train.ema_decay: expected a number >= 0 and < 1, got 1.5"),
     ("train", ["train.ema_decay=1"], "train.ema_decay: expected a number >= 0 and < 1"),
+    ("train", ["train.hand_goal_weight=-1"], "train.hand_goal_weight: expected a number >= 0, got -1.0"),
     ("train", ["train.lr_schedule=cosin"], "train.lr_schedule: expected one of constant, cosine, got 'cosin'"),
     ("train", ["train.geometry_weighting=high"], "train.geometry_weighting: expected one of uniform, signal, got 'high'"),
     ("train", ["train.batch_size=0"], "train.batch_size: expected an integer >= 1, got 0"),

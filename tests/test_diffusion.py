@@ -354,6 +354,23 @@ def test_channel_weights_give_a_weighted_mean_over_free_entries():
     torch.testing.assert_close(out["mse_x0"], sq.mean())                    # logged MSE stays unweighted
 
 
+def test_entry_weights_weigh_single_entries_of_the_mean():
+    """Entry weights (B, L, D) multiply the channel weights entry by entry; weights of 1 give the plain mean."""
+    d = _diff(loss="mse", prediction="x0")
+    x0 = torch.zeros(2, 4, 6)
+    model = lambda x, t, cond, known_mask=None: torch.arange(6.0).expand(2, 4, 6)  # noqa: E731  error = channel index
+    mask = known_mask(2, 4, 2, transition=1)
+    t = torch.tensor([5, 9])
+    plain = d.training_losses(model, x0, t, None, known_mask=mask)["loss"]
+    torch.testing.assert_close(d.training_losses(model, x0, t, None, known_mask=mask,
+                                                 entry_weights=torch.ones(2, 4, 6))["loss"], plain)
+    e = torch.ones(2, 4, 6)
+    e[0, -1, 5] = 7.0                                              # one entry of sample 0, error 5
+    out = d.training_losses(model, x0, t, None, known_mask=mask, entry_weights=e)["loss"]
+    sq = torch.arange(6.0) ** 2                                    # 6 free frames (3 per sample) of these errors
+    torch.testing.assert_close(out, (6 * sq.sum() + 6 * sq[5]) / (6 * 6 + 6))
+
+
 def test_hand_goal_per_sample():
     """A hand goal per sample: each row pins its own wrist's x, y, z at the last frame only."""
     m = known_mask(3, 5, 22, goal_xz=True, hand=torch.tensor([True, False, True]), hand_joint=torch.tensor([20, 21, 21]))

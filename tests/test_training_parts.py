@@ -7,12 +7,14 @@ import torch
 from motiongen.data.representation import Layout
 from motiongen.data.windows import NormStats
 from motiongen.diffusion import MaskConfig
+from motiongen.diffusion.masks import known_mask
 from motiongen.errors import MotiongenError
 from motiongen.loading.build import acting_hands
 from motiongen.loading.checkpoint import load_checkpoint, save_checkpoint
 from motiongen.skeleton import BODY
 from motiongen.training.data_order import ResumableBatchSampler
 from motiongen.training.ema import EMA
+from motiongen.training.trainer import hand_goal_weights
 from tests.helpers import REST
 
 
@@ -85,3 +87,15 @@ def test_acting_hands_names_the_windows_that_end_in_a_hand_action_and_the_wrist_
     assert acting.tolist() == [True, False] and wrist.tolist() == [20, 21]
     assert acting_hands(MaskConfig(), batch, layout, stats, names) is None
     assert BODY.names[20] == "left_wrist"
+
+
+def test_hand_goal_weight_falls_on_the_named_wrist_over_the_last_quarter():
+    """Window 0 has a left-wrist goal, window 1 none, window 2 a right-wrist goal: the weight is on
+    that wrist's x, y, z over the last 2 of 8 frames and nowhere else; weight 1 is the plain mean."""
+    m = known_mask(3, 8, 22, 2, True, False, torch.tensor([True, False, True]), torch.tensor([20, 21, 21]))
+    w = hand_goal_weights(m, (20, 21), 10.0)
+    assert w.shape == m.shape
+    assert (w == 10).nonzero().tolist() == [[0, f, c] for f in (6, 7) for c in (60, 61, 62)] + \
+        [[2, f, c] for f in (6, 7) for c in (63, 64, 65)]
+    assert ((w == 1) | (w == 10)).all() and hand_goal_weights(m, (20, 21), 1.0) is None
+

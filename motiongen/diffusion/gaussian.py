@@ -119,12 +119,14 @@ class GaussianDiffusion:
                         known_mask: Tensor | None = None, noise: Tensor | None = None,
                         generator: torch.Generator | None = None,
                         channel_weights: Tensor | None = None, loss_mask: Tensor | None = None,
-                        window_terms=None) -> dict[str, Tensor]:
+                        window_terms=None, entry_weights: Tensor | None = None) -> dict[str, Tensor]:
         """Loss on the configured target over the free (not known) entries, or over `loss_mask`
         (B, L, D) bool when given (e.g. free entries plus goal entries the model must predict).
 
         channel_weights (D,): optional per-channel weights of the loss (a weighted mean over the
         free entries), e.g. to make the root trajectory count as much as the pose.
+        entry_weights (B, L, D): optional weights of single entries in that mean (e.g. the wrist
+        that a window's hand goal names, `training.trainer.hand_goal_weights`).
 
         x0 (B, L, D) clean; t (B,) long; known_mask (B, L, D) bool marks entries the caller
         pins. Those entries of x_t hold the clean values (``known``, default x0) — exactly what
@@ -149,10 +151,11 @@ class GaussianDiffusion:
             free = torch.ones_like(out) if known_mask is None else (~known_mask).to(out.dtype)
         n = free.sum().clamp(min=1)
         mse, free_fraction = (sq * free).sum() / n, free.mean()
-        if channel_weights is None:
+        if channel_weights is None and entry_weights is None:
             main = (per_entry * free).sum() / n
         else:
-            w = free * channel_weights.to(out.dtype)                                          # (B, L, D)
+            w = free if channel_weights is None else free * channel_weights.to(out.dtype)        # (B, L, D)
+            w = w if entry_weights is None else w * entry_weights.to(out.dtype)
             main = (per_entry * w).sum() / w.sum().clamp(min=1e-8)
         name = f"{self.cfg.loss}_{self.cfg.prediction}"
         terms = {"loss": main, name: main.detach(), f"mse_{self.cfg.prediction}": mse,

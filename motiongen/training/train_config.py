@@ -29,6 +29,11 @@ class TrainConfig:
     pelvis_loss_weight: float = 1.0
     # Geometry on the network's own prediction (training/body_losses.py), metres: bone lengths
     # against the clean window's, and the speed (m/s) of feet the data flags planted. 0 = off.
+    # Loss weight of the wrist a window's hand goal names (`mask.p_hand`, `mask.p_hand_action`),
+    # its x, y, z over the window's last quarter, relative to the other entries (1 = plain): the
+    # hand goal is 3 of the window's L*D entries, and with a plain mean the network learnt to
+    # ignore it (docs/results.md).
+    hand_goal_weight: float = 1.0
     w_bone_length: float = 0.0
     w_planted_feet: float = 0.0
     geometry_weighting: str = "uniform"   # uniform | signal: each window by its share of signal ᾱ_t (body_losses.py)
@@ -57,7 +62,8 @@ class TrainConfig:
         for key in ("warmup_steps", "geometry_start", "geometry_ramp", "val_every", "figure_every", "keep_last", "num_workers", "threads"):
             r(f"train.{key}", getattr(self, key), 0, integer=True)
         r("train.lr", self.lr, 0, lo_open=True)   # no ceiling: lr=1e20 is how a diverging run is reproduced
-        for key in ("weight_decay", "grad_clip", "pelvis_loss_weight", "w_bone_length", "w_planted_feet"):
+        for key in ("weight_decay", "grad_clip", "pelvis_loss_weight", "hand_goal_weight", "w_bone_length",
+                    "w_planted_feet"):
             r(f"train.{key}", getattr(self, key), 0)
         for key in ("min_lr_ratio", "cond_drop_scene", "cond_drop_actions"):
             r(f"train.{key}", getattr(self, key), 0, 1)

@@ -137,7 +137,9 @@ def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
         losses = run.diffusion.training_losses(run.net, x0, t, cond, known=x0, known_mask=known_mask, noise=noise,
                                                channel_weights=loop.weights,
                                                loss_mask=loss_mask(known_mask, loop.predict_goal),
-                                               window_terms=loop.body)
+                                               window_terms=loop.body,
+                                               entry_weights=hand_goal_weights(known_mask, loop.mask.goal_hands,
+                                                                               run.tc.hand_goal_weight))
     loss = losses["loss"]
     run.opt.zero_grad(set_to_none=True)
     loss.backward()
@@ -152,6 +154,21 @@ def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
     for k, v in losses.items():
         loop.sums[k] = loop.sums.get(k, 0) + v.detach().float()
     loop.sums["grad_norm"] = loop.sums.get("grad_norm", 0) + gnorm.detach().float()
+
+
+def hand_goal_weights(known_mask: torch.Tensor, hands, weight: float) -> torch.Tensor | None:
+    """(B, L, D) loss weights: `weight` on the x, y, z of the wrist whose last-frame entries
+    known_mask (B, L, D) gives (a hand goal on one of the joints `hands`) over the window's last
+    quarter, 1 elsewhere; None when weight is 1 (the plain mean)."""
+    if weight == 1.0:
+        return None
+    B, L, D = known_mask.shape
+    tail = max(1, L // 4)
+    w = torch.ones(B, L, D, device=known_mask.device)
+    for j in hands:
+        given = known_mask[:, -1, 3 * j]                                                          # (B,) bool
+        w[:, L - tail:, 3 * j:3 * j + 3] = torch.where(given, weight, 1.0)[:, None, None]
+    return w
 
 
 def _at_intervals(run: Run, loop: _Loop) -> None:
