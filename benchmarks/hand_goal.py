@@ -21,9 +21,9 @@ from motiongen.eval.evaluate_config import dataset_config
 from motiongen.importers.sources import open_dataset
 from motiongen.loading.build import acting_hands, load_model
 from motiongen.models import Condition
+from motiongen.skeleton import HAND_JOINTS
 
 SPEC = {"ckpt": (str, None), "split": (str, "val"), "windows": (int, 120), "steps": (int, 10)}
-WRISTS = (20, 21)            # SMPL-X left and right wrist
 HAND_ACTION = "pick up"
 
 
@@ -42,7 +42,7 @@ def run(argv: list[str]) -> None:
     loaded = load_model(opts["ckpt"])
     ds = open_dataset(dataset_config(None, loaded.config), verbose=False)
     batch = pick_up_windows(loaded, ds, opts["split"], opts["windows"])
-    _, wrist = acting_hands(MaskConfig(p_hand_action=1.0, hand_joints=WRISTS), batch, loaded.layout, loaded.stats,
+    _, wrist = acting_hands(MaskConfig(p_hand_action=1.0, hand_joints=HAND_JOINTS), batch, loaded.layout, loaded.stats,
                             loaded.action_names)                                               # (B,) the reaching wrist
     x0 = batch["motion"]                                                                       # (B, L, D)
     B, L, D = x0.shape

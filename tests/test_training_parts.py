@@ -9,12 +9,11 @@ from motiongen.data.windows import NormStats
 from motiongen.diffusion import MaskConfig
 from motiongen.diffusion.masks import known_mask
 from motiongen.errors import MotiongenError
-from motiongen.loading.build import acting_hands
+from motiongen.loading.build import acting_hands, hand_goal_weights
 from motiongen.loading.checkpoint import load_checkpoint, save_checkpoint
 from motiongen.skeleton import BODY
 from motiongen.training.data_order import ResumableBatchSampler
 from motiongen.training.ema import EMA
-from motiongen.training.trainer import hand_goal_weights
 from tests.helpers import REST
 
 

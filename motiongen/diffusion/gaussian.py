@@ -126,7 +126,7 @@ class GaussianDiffusion:
         channel_weights (D,): optional per-channel weights of the loss (a weighted mean over the
         free entries), e.g. to make the root trajectory count as much as the pose.
         entry_weights (B, L, D): optional weights of single entries in that mean (e.g. the wrist
-        that a window's hand goal names, `training.trainer.hand_goal_weights`).
+        that a window's hand goal names, `loading.build.hand_goal_weights`).
 
         x0 (B, L, D) clean; t (B,) long; known_mask (B, L, D) bool marks entries the caller
         pins. Those entries of x_t hold the clean values (``known``, default x0) — exactly what

@@ -238,3 +238,18 @@ def loss_channel_weights(tc, channels: int, device) -> torch.Tensor | None:
     w = torch.ones(channels, device=device)
     w[:3] = tc.pelvis_loss_weight
     return w
+
+
+def hand_goal_weights(known_mask: torch.Tensor, hands, weight: float) -> torch.Tensor | None:
+    """(B, L, D) loss weights: `weight` on the x, y, z of the wrist whose last-frame entries
+    known_mask (B, L, D) gives (a hand goal on one of the joints `hands`) over the window's last
+    quarter, 1 elsewhere; None when weight is 1 (the plain mean)."""
+    if weight == 1.0:
+        return None
+    B, L, D = known_mask.shape
+    tail = max(1, L // 4)
+    w = torch.ones(B, L, D, device=known_mask.device)
+    for j in hands:
+        given = known_mask[:, -1, 3 * j]                                                          # (B,) bool
+        w[:, L - tail:, 3 * j:3 * j + 3] = torch.where(given, weight, 1.0)[:, None, None]
+    return w

@@ -25,8 +25,8 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from motiongen.cli import Interrupted
 from motiongen.diffusion.masks import MaskConfig, loss_mask
 from motiongen.errors import MotiongenError
-from motiongen.loading.build import (acting_hands, batch_condition, goal_predicted, known_mask_for_batch,
-                                     loss_channel_weights, mask_config)
+from motiongen.loading.build import (acting_hands, batch_condition, goal_predicted, hand_goal_weights,
+                                     known_mask_for_batch, loss_channel_weights, mask_config)
 from motiongen.loading.checkpoint import remove_orphan_temps, save_checkpoint
 from motiongen.training import distributed as dd
 from motiongen.training.body_losses import BodyLosses
@@ -154,21 +154,6 @@ def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
     for k, v in losses.items():
         loop.sums[k] = loop.sums.get(k, 0) + v.detach().float()
     loop.sums["grad_norm"] = loop.sums.get("grad_norm", 0) + gnorm.detach().float()
-
-
-def hand_goal_weights(known_mask: torch.Tensor, hands, weight: float) -> torch.Tensor | None:
-    """(B, L, D) loss weights: `weight` on the x, y, z of the wrist whose last-frame entries
-    known_mask (B, L, D) gives (a hand goal on one of the joints `hands`) over the window's last
-    quarter, 1 elsewhere; None when weight is 1 (the plain mean)."""
-    if weight == 1.0:
-        return None
-    B, L, D = known_mask.shape
-    tail = max(1, L // 4)
-    w = torch.ones(B, L, D, device=known_mask.device)
-    for j in hands:
-        given = known_mask[:, -1, 3 * j]                                                          # (B,) bool
-        w[:, L - tail:, 3 * j:3 * j + 3] = torch.where(given, weight, 1.0)[:, None, None]
-    return w
 
 
 def _at_intervals(run: Run, loop: _Loop) -> None:
