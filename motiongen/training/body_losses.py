@@ -54,6 +54,14 @@ class BodyLosses:
         return min(1.0, (self.step - self.start + 1) / self.ramp) if self.ramp > 0 else 1.0
 
     def __call__(self, window: torch.Tensor, x0: torch.Tensor, free: torch.Tensor, t: torch.Tensor) -> dict:
+        if self.scale() == 0:
+            # Weight 0 (before `start`): the terms are only logged, so no graph is kept for a
+            # backward pass that would add nothing (it was a third of a tiny model's step).
+            with torch.no_grad():
+                return self._terms(window, x0, free, t)
+        return self._terms(window, x0, free, t)
+
+    def _terms(self, window: torch.Tensor, x0: torch.Tensor, free: torch.Tensor, t: torch.Tensor) -> dict:
         j_hat, _ = self.layout.decode(self.stats.denormalize(window))                    # (B, L, J, 3)
         j, planted = self.layout.decode(self.stats.denormalize(x0))                      # (B, L, J, 3), (B, L, C)
         frames = free.amax(-1)                                                            # (B, L) any free entry
