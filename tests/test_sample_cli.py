@@ -90,6 +90,10 @@ def test_end_to_end_writes_all_outputs(files, tmp_path):
         assert z["goals"].shape == (2, 2) and list(z["goal_actions"]) == ["", "sit"]
         assert z["actions"].shape == z["joints"].shape[:2] and z["path"].shape[1] == 2
         assert z["episode_starts"][0] == 0 and z["arrival_error"].shape == (2, 2)
+        # the video's camera, one per output frame, kept so the shot can be reproduced
+        T = z["joints"].shape[1]
+        assert z["camera_position"].shape == z["camera_target"].shape == (T, 3) and str(z["camera_mode"]) == "adaptive"
+        assert np.all(np.abs(z["camera_position"][:, 1] - 1.4) < 1e-6)        # the ring camera's height
     assert "real-time factor" in stdout and "goal 1" in stdout
     from motiongen.commands.fit_command import load_input  # the fitting tool reads it
 
@@ -107,6 +111,7 @@ BAD = {
     "missing_scene": (["goals=[[1.5,-1.0]]", "scene={dir}/nothing.obj"], "scene mesh file or folder is missing"),
     "bad_goals_file": (["goals_file={dir}/bad.json"], "goals[0]"),
     "bad_precision": (["goals=[[1.5,-1.0]]", "precision=fp16"], "precision: expected one of fp32, bf16, auto"),
+    "bad_camera": (["goals=[[1.5,-1.0]]", "video_camera=orbit"], "video_camera: expected one of adaptive, follow, top"),
     "diverged_ckpt": (["goals=[[1.5,-1.0]]", "ckpt={dir}/diverged.pt"], "diverged.pt [ema]: non-finite weights"),
     "goal_far": (["goals=[[1e300,0.0]]"], "goals[0]: expected a point [x, z] of two numbers within"),
     "negative_duration": (["goals=[[1.5,-1.0]]", "durations=[-5]"], "durations[0]: expected a number >= 0"),

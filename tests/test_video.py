@@ -210,3 +210,32 @@ def test_workers_draw_the_same_video_as_one_process(motion, tmp_path, monkeypatc
     one, _ = _frames(render_video(tmp_path / "one.mp4", joints, 30.0, workers=1, **kw))
     two, _ = _frames(render_video(tmp_path / "two.mp4", joints, 30.0, workers=2, **kw))
     assert one.shape == (T, H, W, 3) and np.array_equal(one, two)
+
+
+def test_the_saved_camera_is_the_one_each_frame_was_drawn_with(motion, tmp_path):
+    # Two cameras by turns, both 3 m in front of the body, aimed 0.6 m to either side of it: the
+    # body must appear where the camera arrays saved for motion.npz put it, frame by frame.
+    from motiongen.export.camera import CameraPath, PinholeCamera
+    from motiongen.skeleton import PELVIS
+
+    bm, body, joints = motion
+    pel = joints[0, :, PELVIS]                                                        # (T, 3)
+    side = np.where(np.arange(T) % 2 == 0, 0.6, -0.6)                                 # (T,) metres
+    eye = pel + np.array([0.0, 0.4, 3.0])
+    target = pel + np.stack([side, np.full(T, 0.4), np.zeros(T)], -1)
+    np.savez(tmp_path / "camera.npz", **CameraPath(eye, target, 1.6, "follow").arrays())
+    path = render_video(tmp_path / "c.mp4", joints, 30.0, bodies=[body], body_model=bm, camera=CameraPath(eye, target))
+    frames, _ = _frames(path)
+    with np.load(tmp_path / "camera.npz") as z:
+        cams = [PinholeCamera(z["camera_position"][t], z["camera_target"][t], z["camera_focal"][t]) for t in range(T)]
+    # The panel (axes at 45-99 % of 800 px, 2 % up, 90 % high, equal aspect, x in ±1.0, y in ±0.8)
+    # is limited by its height: 0.9 * 352 px for 1.6 units, centred at 72 % of the width.
+    px_per_unit, centre = 0.9 * H / 1.6, 0.72 * W
+    for t in range(T):
+        u = cams[t].project(pel[t][None])[0][0, 0]
+        assert abs(abs(u) - 0.6 * 1.6 / 3.0) < 0.05                                  # the saved camera aims beside the body
+        f = frames[t].astype(int)
+        red = (f[..., 0] > 110) & (f[..., 0] - f[..., 1] > 60) & (f[..., 0] - f[..., 2] > 60)
+        red[:, :CAM_X0] = False
+        cols = np.nonzero(red)[1]
+        assert len(cols) > 500 and abs(np.median(cols) - (centre + u * px_per_unit)) < 20, (t, np.median(cols), u)

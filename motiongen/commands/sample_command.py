@@ -27,8 +27,10 @@ from motiongen.body.model import load_body_model
 from motiongen.bvh.export import export_bvh
 from motiongen.commands.hydra_app import hydra_command
 from motiongen.errors import ConfigError
+from motiongen.export.camera import CameraPath
 from motiongen.export.trajectory_plot import plot_trajectories
 from motiongen.export.video import render_video, video_suffix
+from motiongen.export.video_camera import camera_path, object_points
 from motiongen.loading.build import LoadedModel
 from motiongen.loading.keys import checkpoint_path, load_checkpoint_model
 from motiongen.output_lock import OutputLock, claim_run_dir, refuse_output_over_input
@@ -143,8 +145,9 @@ def write_outputs(cfg: SampleConfig, out: Path, res: Sampled, t0: float) -> tupl
         extra = {"ckpt": str(res.ckpt), "scene": res.scene.label, "sampler": sampler.sampler, "steps": sampler.steps,
                  "eta": sampler.eta, "guidance_scale": sampler.guidance_scale, "seed": cfg.seed,
                  "precision": res.loaded.precision}
+        camera = video_camera(cfg, res) if cfg.video else None
         tmp = stage.tmp("motion.npz")
-        np.savez(tmp, **motion_arrays(res.motion, extra))
+        np.savez(tmp, **motion_arrays(res.motion, extra), **(camera.arrays() if camera is not None else {}))
         stage.add(tmp, "motion.npz")
         goals_xz = np.stack([g.xz for g in res.route.goals])
         if cfg.plot:
@@ -153,7 +156,7 @@ def write_outputs(cfg: SampleConfig, out: Path, res: Sampled, t0: float) -> tupl
                                     title=f"{res.scene.label} — {res.ckpt.name}")
             stage.add(tmp, "trajectories.png")
         if cfg.video:
-            write_video(stage, cfg, res, goals_xz)
+            write_video(stage, cfg, res, goals_xz, camera)
         write_exports(stage, cfg, res)
         figures = body_figures(res.motion)
         lines = summary_lines(res.motion, sampler, figures)
@@ -169,13 +172,22 @@ def write_outputs(cfg: SampleConfig, out: Path, res: Sampled, t0: float) -> tupl
     return summary, lines, written
 
 
-def write_video(stage: StagedOutputs, cfg: SampleConfig, res: Sampled, goals_xz: np.ndarray) -> None:
+def video_camera(cfg: SampleConfig, res: Sampled) -> CameraPath:
+    """The video's camera over sample 0 (`video_camera`): what the video shows and motion.npz keeps."""
+    motion = res.motion
+    return camera_path(cfg.video_camera, motion.joints[0], motion.fps, res.scene.grid, res.scene.mesh,
+                       object_points(res.scene.objects))
+
+
+def write_video(stage: StagedOutputs, cfg: SampleConfig, res: Sampled, goals_xz: np.ndarray,
+                camera: CameraPath) -> None:
     motion, tv = res.motion, time.perf_counter()
     tmp = render_video(stage.tmp("motion" + video_suffix()), motion.joints, motion.fps,
                        res.loaded.joint_set.parents, res.scene.grid, res.fmap, res.route.path, res.route.subgoals,
                        goals_xz, video_fps=cfg.video_fps, title=f"{res.scene.label}", bodies=motion.bodies,
                        body_model=res.body_model, planted=motion.planted,
-                       contact_joints=res.loaded.layout.contact_joints, style=cfg.video_style)
+                       contact_joints=res.loaded.layout.contact_joints, style=cfg.video_style, camera=camera,
+                       scene_mesh=res.scene.mesh)
     stage.add(tmp, "motion" + tmp.suffix)
     print(f"video: {motion.joints.shape[1] / motion.fps:.1f} s rendered in {time.perf_counter() - tv:.1f} s", flush=True)
 

@@ -1,6 +1,6 @@
 """The video's follow camera: behind and above the body, looking at the pelvis, its heading
-smoothed so it does not shake with every step; projection of points, floor-grid segments and
-obstacle faces into its image plane."""
+smoothed so it does not shake with every step; projection of floor-grid segments and
+obstacle faces into a camera's image plane."""
 
 from __future__ import annotations
 
@@ -8,9 +8,8 @@ import math
 
 import numpy as np
 
-from motiongen.skeleton import LEFT_HIP, RIGHT_HIP
-
-CAM_VIEW = (1.0, 0.8)      # the camera panel shows image-plane x in ±1.0, y in ±0.8 (focal 1.6)
+from motiongen.export.camera import CAM_VIEW, CameraPath, PinholeCamera
+from motiongen.skeleton import LEFT_HIP, PELVIS, RIGHT_HIP
 
 
 def camera_heading(joints: np.ndarray, fps: float, tau: float = 0.8) -> np.ndarray:
@@ -28,28 +27,22 @@ def camera_heading(joints: np.ndarray, fps: float, tau: float = 0.8) -> np.ndarr
     return np.arctan2(out[:, 0], out[:, 1])
 
 
-class FollowCamera:
-    """Pinhole camera behind the body looking at the pelvis: world (N, 3) -> image (N, 2), depth."""
-
-    def __init__(self, target: np.ndarray, yaw: float, dist: float = 3.2, height: float = 1.9, focal: float = 1.6):
-        fwd = np.array([math.sin(yaw), 0.0, math.cos(yaw)])
-        self.eye = target + np.array([0.0, height - target[1], 0.0]) - dist * fwd
-        look = target + np.array([0.0, 0.9 - target[1], 0.0]) - self.eye
-        z = look / np.linalg.norm(look)
-        x = np.cross(np.array([0.0, 1.0, 0.0]), z)
-        x /= np.linalg.norm(x)
-        y = np.cross(z, x)
-        self.R = np.stack([-x, y, z])          # image x to the right: world-left is body +x
-        self.focal = focal
-
-    def project(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        c = (p - self.eye) @ self.R.T                                                        # (N, 3)
-        d = c[:, 2]
-        uv = self.focal * c[:, :2] / np.maximum(d, 1e-3)[:, None]
-        return uv, d
+def follow_path(joints: np.ndarray, fps: float, dist: float = 3.2, height: float = 1.9,
+                focal: float = 1.6) -> CameraPath:
+    """Behind and above the pelvis of joints (T, J, 3), `dist` back along the smoothed heading
+    at `height` metres, looking at the point 0.9 m above the floor under the pelvis."""
+    p = joints[:, PELVIS].astype(np.float64)                                                 # (T, 3)
+    yaw = camera_heading(joints, fps)                                                        # (T,)
+    fwd = np.stack([np.sin(yaw), np.zeros_like(yaw), np.cos(yaw)], -1)                       # (T, 3)
+    eye = p.copy()
+    eye[:, 1] = height
+    eye -= dist * fwd
+    target = p.copy()
+    target[:, 1] = 0.9
+    return CameraPath(eye, target, focal, "follow")
 
 
-def project_segments(cam: FollowCamera, segs: np.ndarray) -> np.ndarray:
+def project_segments(cam: PinholeCamera, segs: np.ndarray) -> np.ndarray:
     """World segments (N, 2, 3) -> image segments (M, 2, 2): those in front of the camera and
     not far outside its view."""
     if not len(segs):
@@ -60,7 +53,7 @@ def project_segments(cam: FollowCamera, segs: np.ndarray) -> np.ndarray:
     return uv[ok]
 
 
-def visible_faces(cam: FollowCamera, body: np.ndarray, faces: np.ndarray, normals: np.ndarray, rgb: np.ndarray,
+def visible_faces(cam: PinholeCamera, body: np.ndarray, faces: np.ndarray, normals: np.ndarray, rgb: np.ndarray,
                   radius: float = 7.0, view: tuple[float, float] = CAM_VIEW) -> tuple[list, np.ndarray]:
     """Projected faces near the camera that face it, far to near (painter's algorithm), with
     faces between the camera and the body see-through so furniture never hides the person."""

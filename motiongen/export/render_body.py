@@ -1,5 +1,7 @@
 """Skinned bodies for the video's camera panel: meshes posed chunk by chunk, Lambert-shaded,
-rasterised with a z-buffer in numpy and composited onto the frame matplotlib drew.
+rasterised with a z-buffer in numpy and composited onto the frame matplotlib drew. That is the
+fallback where OpenGL is unavailable; otherwise `gl_render` draws the bodies (`BodyLayer.posed`,
+`BodyLayer.discs`) depth-tested with the scene.
 
 Why numpy and not matplotlib polygons: a body is a few thousand faces per frame at 30 fps;
 one vectorised z-buffer pass over the bodies' bounding box (every candidate pixel of every
@@ -153,6 +155,13 @@ def facing(points: np.ndarray, faces: np.ndarray, eye: np.ndarray) -> tuple[np.n
     return ((eye - p[:, 0]) * n).sum(1) > 0, n
 
 
+def light_direction(cam) -> np.ndarray:
+    """(3,) unit vector towards the light: above, behind the camera and a little to its right
+    (cam.R rows: image right, image up, forward)."""
+    d = np.array([0.0, 1.0, 0.0]) - 0.7 * cam.R[2] + 0.3 * cam.R[0]
+    return d / np.linalg.norm(d)
+
+
 def contact_anchors(joints: np.ndarray, planted: np.ndarray, contact_joints) -> np.ndarray:
     """(S, T, C, 2) floor point (x, z) where each planted foot joint was put down (its position
     at the first frame of the current planted span); NaN where it is not planted.
@@ -193,33 +202,52 @@ class BodyLayer:
         self.colours = 0.75 * np.asarray(colours, np.float64)[:, :3] + 0.25
         self.contact_parts = np.asarray(contact_parts, np.int64).reshape(-1)
 
+    def posed(self, t: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Per body at frame t: vertices (K, 3), faces (F, 3) and vertex colours (K, 3), the
+        parts of a planted foot tinted (what `gl_render.PanelRenderer.render` draws)."""
+        m, out = self.meshes, []
+        for s in range(len(m)):
+            rgb = np.broadcast_to(self.colours[s], (len(m.part), 3)).copy()               # (K, 3)
+            tint = np.isin(m.part, self._planted_parts(s, t))
+            rgb[tint] = 0.25 * rgb[tint] + 0.75 * CONTACT_RGB
+            out.append((m.vertices(s, t), m.faces, rgb))
+        return out
+
+    def discs(self, t: int) -> np.ndarray:
+        """(N, 3, 3) floor-disc triangles of every body's planted feet at frame t."""
+        if self.anchors is None:
+            return np.zeros((0, 3, 3))
+        a = self.anchors[:, t].reshape(-1, 2)
+        return disc_triangles(a[~np.isnan(a[:, 0])])
+
+    def _planted_parts(self, s: int, t: int) -> np.ndarray:
+        """The body joints (n,) whose parts body s holds planted at frame t."""
+        if self.anchors is None:
+            return np.zeros(0, np.int64)
+        on = self.contact_parts[~np.isnan(self.anchors[s, t, :, 0])]
+        return on[on >= 0]
+
     def draw(self, frame: np.ndarray, cam, to_px, box: tuple[int, int, int, int], t: int) -> None:
         """Composite frame t in place onto frame (H, W, 3) uint8 inside box (r0, r1, c0, c1).
         cam: .project((N, 3)) -> (uv (N, 2), depth (N,)), .eye (3,), .R (3, 3) (rows: image x,
         image y, view direction); to_px: uv (N, 2) -> frame pixels (N, 2) (x right, y down)."""
         m = self.meshes
-        fwd = cam.R[2]
-        light = np.array([0.0, 1.0, 0.0]) - 0.7 * fwd + 0.3 * cam.R[0]
-        light /= np.linalg.norm(light)
+        light = light_direction(cam)
         tris, rgbs, shadow = [], [], []
         for s in range(len(m)):
             v = m.vertices(s, t)                                                       # (K, 3)
             front, nrm = facing(v, m.faces, cam.eye)
             base = np.broadcast_to(self.colours[s], (len(m.faces), 3)).copy()          # (F, 3)
-            if self.anchors is not None:
-                on = self.contact_parts[~np.isnan(self.anchors[s, t, :, 0])]
-                tint = np.isin(m.face_part, on[on >= 0])
-                base[tint] = 0.25 * base[tint] + 0.75 * CONTACT_RGB
+            tint = np.isin(m.face_part, self._planted_parts(s, t))
+            base[tint] = 0.25 * base[tint] + 0.75 * CONTACT_RGB
             lum = 0.35 + 0.65 * np.clip(nrm @ light, 0.0, 1.0)                          # (F,) Lambert + ambient
             tris.append(v[m.faces[front]])
             rgbs.append(base[front] * lum[front, None])
             up = nrm[:, 1] > 0             # a closed mesh's up-facing faces cover its whole shadow
             shadow.append(v[m.faces[up]] * np.array([1.0, 0.0, 1.0]))
-            if self.anchors is not None:
-                a = self.anchors[s, t]
-                d = disc_triangles(a[~np.isnan(a[:, 0])])
-                tris.append(d)
-                rgbs.append(np.broadcast_to(CONTACT_RGB, (len(d), 3)))
+        d = self.discs(t)
+        tris.append(d)
+        rgbs.append(np.broadcast_to(CONTACT_RGB, (len(d), 3)))
         self._shadow(frame, np.concatenate(shadow), cam, to_px, box)
         self._bodies(frame, np.concatenate(tris), np.concatenate(rgbs), cam, to_px, box)
 

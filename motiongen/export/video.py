@@ -1,19 +1,23 @@
-"""Motion videos: a top-down map and a follow camera, rendered with matplotlib (Agg).
+"""Motion videos: a top-down map and a perspective camera, drawn with matplotlib (Agg) and,
+for the camera's 3D content, OpenGL.
 
 Left panel: the scene's obstacles seen from above (from the occupancy grid), the planned path,
 subgoals and goals, the trajectory so far, and the skeleton, in a window that follows the
-body. Right panel: a perspective camera behind and above the body (heading smoothed so the
-camera does not shake with every step), with a floor grid, obstacles as shaded boxes (faces
-between the camera and the body drawn see-through) and the goals; the body itself is the
-skinned mesh (`style="body"`, drawn by `render_body`: shaded, with its shadow and the planted
-feet marked on the floor) or the stick figure (`style="skeleton"`). The figure and its frames:
-`video_frame`; the camera: `follow_camera`; the obstacles: `obstacles`.
+body. Right panel: a perspective camera (by default behind and above the body, heading
+smoothed so the camera does not shake with every step) showing the scene (its mesh, or the
+occupancy as boxes), a floor with a 1 m grid and the skinned body (`style="body"`: shaded,
+with its shadow and the planted feet marked on the floor) or the stick figure
+(`style="skeleton"`), depth-tested together by `gl_render`; path and goals drawn over it.
+Without OpenGL the panel falls back to matplotlib boxes (painter's algorithm, faces between
+the camera and the body see-through) and the body rasterised in numpy (`render_body`). The
+figure and its frames: `video_frame`; the cameras: `camera`, `follow_camera`; the obstacles:
+`obstacles`.
 
-Speed: one figure is built once and only artists' data change per frame; the mesh is
-rasterised in numpy and composited onto the drawn frame; blocks of frames are drawn by forked
-worker processes on Linux (one per core, up to 4) and stream in order to the encoder. Every
-frame of the motion is rendered unless `video_fps` asks for fewer. Written as mp4 through
-imageio-ffmpeg when it is available, otherwise as a gif.
+Speed: one figure is built once and only artists' data change per frame; blocks of frames are
+drawn by forked worker processes on Linux (one per core, up to 4, each with its own OpenGL
+context) and stream in order to the encoder. Every frame of the motion is rendered unless
+`video_fps` asks for fewer. Written as mp4 through imageio-ffmpeg when it is available,
+otherwise as a gif.
 """
 
 from __future__ import annotations
@@ -58,7 +62,8 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
                  goals: np.ndarray | None = None, video_fps: float | None = None, size: tuple[int, int] = (800, 352),
                  title: str = "", max_frames: int | None = None, *, bodies: Sequence | None = None,
                  body_model=None, planted: np.ndarray | None = None, contact_joints: Sequence[int] = (),
-                 style: str = "body", workers: int | None = None) -> Path:
+                 style: str = "body", workers: int | None = None, camera=None, scene_mesh=None,
+                 gl: bool | None = None) -> Path:
     """Render joints (S, T, J, 3) (or (T, J, 3)) to `path` (.mp4, or .gif when ffmpeg is missing
     or the suffix asks for it). Sample 0 drives the cameras; others are drawn alongside.
 
@@ -70,8 +75,12 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
     planted (S, T, C) bool: the foot joints `contact_joints` (C,) held on the floor, marked
     per frame. workers: processes drawing frames on Linux (None: up to 4, one per available
     core; 1: this process only; elsewhere always this process); the frames are the same
-    whichever process draws them. Returns the path actually written (the suffix may change to
-    .gif)."""
+    whichever process draws them. camera: `camera.CameraPath` of the camera panel, one camera
+    per motion frame (None: the follow camera). scene_mesh: the scene as a y-up trimesh in
+    metres in the joints' world frame, shown by the camera panel (None: the occupancy of
+    grid/walkable as boxes). gl: draw the camera panel with OpenGL (None: where an EGL context
+    can be made, else the matplotlib and numpy fallback, which shows boxes only; False: the
+    fallback). Returns the path actually written (the suffix may change to .gif)."""
     if style not in ("body", "skeleton"):
         raise ValueError(f"style: expected 'body' or 'skeleton', got {style!r}")
     path = Path(path)
@@ -91,13 +100,15 @@ def render_video(path: str | Path, joints: np.ndarray, fps: float, parents: Sequ
     anchors = _contact_anchors(joints, planted, contact_joints)                             # (S, T, C, 2)
     bones = [(j, p) for j, p in enumerate(list(parents)[:J]) if p >= 0]
     drawer = FrameDrawer(joints, fps, bones, size, title, walkable=walkable, grid=grid, path_xz=path_xz,
-                         subgoals=subgoals, goals=goals, anchors=anchors, meshes=meshes, contact_joints=contact_joints)
+                         subgoals=subgoals, goals=goals, anchors=anchors, meshes=meshes, contact_joints=contact_joints,
+                         camera=camera, scene_mesh=scene_mesh, gl=gl)
     writer = _open_writer(path, out_fps)
     try:
         for frame in _frame_stream(drawer.draw, frames_idx, workers):
             writer.append_data(frame)
     finally:
         writer.close()
+        drawer.close()
     return path
 
 

@@ -1,10 +1,14 @@
 """The video's figure and how one frame of it is drawn (`FrameDrawer`).
 
 Left panel: the scene's obstacles seen from above, the planned path, subgoals and goals, the
-trajectory so far and the skeleton, in a window that follows the body. Right panel: the follow
-camera (`follow_camera`) with a floor grid, obstacles as shaded boxes and the goals; the body is
-the skinned mesh (`render_body.BodyLayer`, composited onto the drawn frame) or the stick figure.
-The figure is built once; per frame only the artists' data change.
+trajectory so far and the skeleton, in a window that follows the body. Right panel: the camera
+(`camera.CameraPath`, by default `follow_camera`). Where OpenGL is available (`gl_render`) it
+shows the scene (its mesh, or the occupancy as boxes), the floor with a 1 m grid, the skinned
+bodies, their shadow and the planted-foot discs, depth-tested together, as an image under
+matplotlib's path and goals (and the stick figure's bones). Without it: a floor grid, obstacles
+as shaded boxes (painter's algorithm) and the body rasterised in numpy
+(`render_body.BodyLayer`, composited onto the drawn frame). The figure is built once; per frame
+only the artists' data change.
 """
 
 from __future__ import annotations
@@ -14,9 +18,11 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from motiongen.export import gl_render
 from motiongen.export import render_body as rb
-from motiongen.export.follow_camera import CAM_VIEW, FollowCamera, camera_heading, project_segments, visible_faces
-from motiongen.export.obstacles import obstacle_columns, obstacle_faces
+from motiongen.export.camera import CAM_VIEW, CameraPath, PinholeCamera
+from motiongen.export.follow_camera import follow_path, project_segments, visible_faces
+from motiongen.export.obstacles import obstacle_columns, obstacle_faces, obstacle_triangles
 from motiongen.skeleton import NUM_BODY_JOINTS, PELVIS
 
 SAMPLE_COLOURS = ("#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf")
@@ -42,12 +48,17 @@ class FrameDrawer:
 
     bones: (child, parent) joint pairs. anchors (S, T, C, 2) or None: where planted feet were
     put down (NaN when not planted). meshes: `render_body.BodyMeshes` of the samples, or None
-    for the stick figure; contact_joints (C,): the joints of `anchors`' columns."""
+    for the stick figure; contact_joints (C,): the joints of `anchors`' columns. camera: the
+    camera panel's camera per frame (None: `follow_camera.follow_path` of sample 0).
+    scene_mesh: the scene as a y-up trimesh in metres (None: the occupancy of grid/walkable as
+    boxes); gl: draw the camera panel with OpenGL (None: where available; False: matplotlib
+    and numpy, which never show the mesh itself). `close()` frees the OpenGL context."""
 
     def __init__(self, joints: np.ndarray, fps: float, bones: list[tuple[int, int]], size: tuple[int, int],
                  title: str = "", *, walkable=None, grid=None, path_xz: np.ndarray | None = None,
                  subgoals: np.ndarray | None = None, goals: np.ndarray | None = None,
-                 anchors: np.ndarray | None = None, meshes=None, contact_joints: list[int] = ()):
+                 anchors: np.ndarray | None = None, meshes=None, contact_joints: list[int] = (),
+                 camera: CameraPath | None = None, scene_mesh=None, gl: bool | None = None):
         mpl = _matplotlib()
         self.joints, self.fps, self.anchors = joints, fps, anchors
         S = joints.shape[0]
@@ -65,9 +76,15 @@ class FrameDrawer:
         columns = obstacle_columns(walkable, grid, cell=0.2)                                  # (N, 3)
         self.grid_segs = _floor_grid(joints[0, :, PELVIS], goals)                            # (N, 2, 3)
         self.faces, self.normals, shade = obstacle_faces(columns, 0.2)                       # (F, 4, 3), (F, 3), (F,)
-        self.face_rgb = np.array([0.55, 0.60, 0.68])[None] * shade[:, None]                  # (F, 3) flat shading
-        self._camera_panel(mpl, S, contact_hex, bones_drawn=meshes is None)
-        self.heading = camera_heading(joints[0], fps)
+        self.face_rgb = np.array(gl_render.SCENE_RGB)[None] * shade[:, None]                 # (F, 3) flat shading
+        use_gl = gl_render.available() if gl is None else gl
+        self._camera_panel(mpl, S, contact_hex, bones_drawn=meshes is None, gl=use_gl)
+        if self.gl is not None:
+            tri = obstacle_triangles(columns, 0.2) if scene_mesh is None else np.asarray(scene_mesh.triangles)
+            self.gl.set_scene(tri)                                                           # (F, 3, 3)
+            bounds = None if scene_mesh is None else np.asarray(scene_mesh.bounds)           # (2, 3)
+            self.gl.set_floor(*_floor_bounds(joints[0, :, PELVIS], goals, bounds))
+        self.camera = follow_path(joints[0], fps) if camera is None else camera
         self.path3 = None if path_xz is None else np.stack([path_xz[:, 0], np.zeros(len(path_xz)), path_xz[:, 1]], -1)
         self.goals3 = None if goals is None or not len(goals) else \
             np.stack([goals[:, 0], np.zeros(len(goals)), goals[:, 1]], -1)
@@ -104,14 +121,16 @@ class FrameDrawer:
             ax.add_collection(lc)
         self.top_feet = ax.plot([], [], "o", color=contact_hex, ms=4, mec="k", mew=0.4, zorder=4)[0]
 
-    def _camera_panel(self, mpl: SimpleNamespace, S: int, contact_hex: str, bones_drawn: bool) -> None:
-        """The camera panel's artists (floor, obstacle faces, path, goals, planted-foot discs and,
-        for the stick figure, the bones), empty until `draw` sets their data."""
+    def _camera_panel(self, mpl: SimpleNamespace, S: int, contact_hex: str, bones_drawn: bool, gl: bool) -> None:
+        """The camera panel's artists (the OpenGL image, or the floor and obstacle faces; path,
+        goals, planted-foot discs and, for the stick figure, the bones), empty until `draw`
+        sets their data."""
         ax = self.ax_cam
         self.cam_floor = mpl.LineCollection([], colors="#bbbbbb", linewidths=0.6, zorder=1)
         self.cam_faces = mpl.PolyCollection([], edgecolors="#56606e", linewidths=0.3, zorder=2)
-        ax.add_collection(self.cam_floor)
-        ax.add_collection(self.cam_faces)
+        if not gl:
+            ax.add_collection(self.cam_floor)
+            ax.add_collection(self.cam_faces)
         self.cam_path = ax.plot([], [], "--", color="#777777", lw=1, zorder=3)[0]
         self.cam_goals = ax.plot([], [], "*", color="#ffbf00", ms=12, mec="k", mew=0.5, zorder=3)[0]
         # Skeleton style: planted-foot discs as polygons under the bones (body style rasterises them).
@@ -128,18 +147,49 @@ class FrameDrawer:
         ax.set_xticks([])
         ax.set_yticks([])
         ax.set_facecolor("#f4f1ea")
+        self.gl, self.gl_box, self.overlays = None, None, []
+        if gl:
+            self._gl_setup(ax, bones_drawn)
+
+    def _gl_setup(self, ax, bones_drawn: bool) -> None:
+        """The OpenGL renderer of the frame pixels inside the panel (box r0, r1, c0, c1), its
+        image plane extent exactly theirs, so its image goes into the frame 1:1 and cam.project
+        lines up with it. Path, goals and bones become overlays that `draw` puts on top of it
+        (animated: the figure's draw leaves them out)."""
+        H = int(round(self.fig.get_figheight() * self.fig.dpi))
+        ax.apply_aspect()                          # the panel's box as drawn (equal aspect)
+        _, self.gl_box = _panel_pixels(ax, H)
+        r0, r1, c0, c1 = self.gl_box
+        M = ax.transData.get_affine().get_matrix()                                          # (3, 3)
+        u = (np.array([c0, c1]) - M[0, 2]) / M[0, 0]
+        v = (H - np.array([r1, r0]) - M[1, 2]) / M[1, 1]
+        self.gl = gl_render.PanelRenderer((c1 - c0, r1 - r0), (u[0], u[1], v[0], v[1]))
+        self.overlays = [self.cam_path, self.cam_goals] + (self.cam_bones if bones_drawn else [])
+        for a in self.overlays:
+            a.set_animated(True)
+
+    def close(self) -> None:
+        """Frees this process's OpenGL context, if any."""
+        if self.gl is not None:
+            self.gl.release()
 
     def draw(self, t: int) -> np.ndarray:
         """Frame t (H, W, 3) uint8."""
         # Every artist that changes is set here from t alone: any process can draw any frame.
         p = self.joints[0, t, PELVIS]
         self._draw_top(t, p)
-        cam = FollowCamera(p, self.heading[t])
+        cam = self.camera.at(t)
         self._draw_camera(t, p, cam)
         self.time_text.set_text(f"{t / self.fps:5.1f} s")
         self.fig.canvas.draw()
+        if self.gl is not None:
+            # The panel's image written into the canvas, then the overlays drawn on it (blitting).
+            r0, r1, c0, c1 = self.gl_box
+            np.asarray(self.fig.canvas.buffer_rgba())[r0:r1, c0:c1, :3] = self._gl_panel(t, cam)
+            for a in self.overlays:
+                self.ax_cam.draw_artist(a)
         frame = np.asarray(self.fig.canvas.buffer_rgba())[..., :3].copy()                # (H, W, 3)
-        if self.layer is not None:
+        if self.layer is not None and self.gl is None:
             self.layer.draw(frame, cam, *_panel_pixels(self.ax_cam, frame.shape[0]), t)
         return frame
 
@@ -152,12 +202,13 @@ class FrameDrawer:
             self.trails[s].set_data(self.joints[s, : t + 1, PELVIS, 0], self.joints[s, : t + 1, PELVIS, 2])
             self.top_bones[s].set_segments(self.joints[s, t][self.bone_idx][..., [0, 2]])  # (B, 2, 2)
 
-    def _draw_camera(self, t: int, p: np.ndarray, cam: FollowCamera) -> None:
+    def _draw_camera(self, t: int, p: np.ndarray, cam: PinholeCamera) -> None:
         """The camera panel at frame t: floor, obstacles, path, goals, planted feet and bones."""
-        self.cam_floor.set_segments(project_segments(cam, self.grid_segs))
-        verts, colours = visible_faces(cam, p, self.faces, self.normals, self.face_rgb)
-        self.cam_faces.set_verts(verts)
-        self.cam_faces.set_facecolor(colours)
+        if self.gl is None:
+            self.cam_floor.set_segments(project_segments(cam, self.grid_segs))
+            verts, colours = visible_faces(cam, p, self.faces, self.normals, self.face_rgb)
+            self.cam_faces.set_verts(verts)
+            self.cam_faces.set_facecolor(colours)
         if self.path3 is not None:
             uv, d = cam.project(self.path3)
             uv = np.where((d > 0.2)[:, None], uv, np.nan)
@@ -170,7 +221,7 @@ class FrameDrawer:
             a = self.anchors[:, t].reshape(-1, 2)
             a = a[~np.isnan(a[:, 0])]                                                    # (N, 2) planted
             self.top_feet.set_data(a[:, 0], a[:, 1])
-            if self.layer is None:
+            if self.layer is None and self.gl is None:
                 uv, d = cam.project(rb.disc_triangles(a, n=16)[:, 1].reshape(-1, 3))     # rim points
                 self.cam_discs.set_verts(list(uv.reshape(-1, 16, 2)) if (d > 0.2).all() else [])
         if self.layer is None:
@@ -178,11 +229,30 @@ class FrameDrawer:
                 uv, d = cam.project(self.joints[s, t])
                 self.cam_bones[s].set_segments(uv[self.bone_idx][(d[self.bone_idx] > 0.2).all(1)])
 
+    def _gl_panel(self, t: int, cam: PinholeCamera) -> np.ndarray:
+        """The OpenGL camera panel (h, w, 3) uint8 at frame t: bodies (body style) and discs."""
+        if self.layer is not None:
+            return self.gl.render(cam, self.layer.posed(t), self.layer.discs(t))
+        discs = None
+        if self.anchors is not None:
+            a = self.anchors[:, t].reshape(-1, 2)
+            discs = rb.disc_triangles(a[~np.isnan(a[:, 0])])
+        return self.gl.render(cam, (), discs)
+
+
+def _floor_bounds(pel: np.ndarray, goals: np.ndarray | None, scene_bounds: np.ndarray | None = None):
+    """Floor rectangle (x, z) lo (2,), hi (2,): 4 m beyond the pelvis path pel (T, 3), the goals
+    (G, 2) and the scene's bounds (2, 3), if given."""
+    lo = np.minimum(pel[:, [0, 2]].min(0), goals.min(0) if goals is not None and len(goals) else np.inf) - 4
+    hi = np.maximum(pel[:, [0, 2]].max(0), goals.max(0) if goals is not None and len(goals) else -np.inf) + 4
+    if scene_bounds is not None:
+        lo, hi = np.minimum(lo, scene_bounds[0, [0, 2]]), np.maximum(hi, scene_bounds[1, [0, 2]])
+    return lo, hi
+
 
 def _floor_grid(pel: np.ndarray, goals: np.ndarray | None) -> np.ndarray:
     """(N, 2, 3) segments of a 1 m floor grid 4 m beyond the pelvis path pel (T, 3) and goals."""
-    lo = np.minimum(pel[:, [0, 2]].min(0), goals.min(0) if goals is not None and len(goals) else np.inf) - 4
-    hi = np.maximum(pel[:, [0, 2]].max(0), goals.max(0) if goals is not None and len(goals) else -np.inf) + 4
+    lo, hi = _floor_bounds(pel, goals)
     gx = np.arange(math.floor(lo[0]), math.ceil(hi[0]) + 1, 1.0)
     gz = np.arange(math.floor(lo[1]), math.ceil(hi[1]) + 1, 1.0)
     grid_segs = [np.array([[x, 0, z0_], [x, 0, z1_]]) for x in gx for z0_, z1_ in zip(gz[:-1], gz[1:])] + \

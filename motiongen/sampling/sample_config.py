@@ -9,6 +9,7 @@ from typing import Any
 
 from motiongen.checks import require_choice, require_fps, require_range
 from motiongen.errors import ConfigError
+from motiongen.export.camera import CAMERA_MODES
 from motiongen.loading.keys import CheckpointKeys
 from motiongen.sampling.goal_input import parse_point
 from motiongen.sampling.settings import LoopConfig, SamplerSettings
@@ -49,6 +50,7 @@ class SampleConfig(SamplerSettings, SceneRouteKeys):
     video: bool = True
     video_fps: float | None = None  # None = every frame, at the motion's rate; a number skips frames
     video_style: str = "body"      # body (the skinned mesh of the motion's body) | skeleton
+    video_camera: str = "adaptive"  # adaptive (ring camera keeping body and hand in view) | follow | top
     plot: bool = True
     bvh: bool = False
     body: bool = False             # the motion's SMPL-X parameters -> body.npz (AMASS layout)
@@ -62,6 +64,7 @@ class SampleConfig(SamplerSettings, SceneRouteKeys):
         require_range("num_samples", self.num_samples, 1, MAX_SAMPLES, integer=True)
         require_fps("video_fps", self.video_fps, allow_none=True)
         require_choice("video_style", self.video_style, ("body", "skeleton"))
+        require_choice("video_camera", self.video_camera, CAMERA_MODES)
         check_loop(self.loop)
 
 

@@ -8,13 +8,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.ndimage as ndi
+import trimesh
 
 from motiongen.data.format import MotionDataset
 from motiongen.errors import ConfigError
 from motiongen.importers.sources import DataConfig, open_dataset
 from motiongen.routing import WalkableMap
 from motiongen.sampling.goals import Goal, plan_route
-from motiongen.scene.mesh_files import load_scene_grid
+from motiongen.scene.mesh_files import load_scene_grid, load_scene_mesh
 from motiongen.scene.voxelize import voxelize_mesh
 from motiongen.synthetic.scenes import make_scene
 
@@ -25,6 +26,7 @@ class SceneInfo:
     label: str
     objects: list = field(default_factory=list)   # [(OccupancyGrid, pose (4, 4))]
     synthetic: object | None = None         # motiongen.synthetic.scenes.Scene when known
+    mesh: object | None = None              # the scene's y-up trimesh (metres), placed objects included, when known
 
 
 def _dataset_scene(ds, scene_id: int, label: str, with_objects: bool) -> SceneInfo:
@@ -32,7 +34,7 @@ def _dataset_scene(ds, scene_id: int, label: str, with_objects: bool) -> SceneIn
         raise ConfigError(f"scene {label}: dataset {ds.root} has no scene {scene_id} "
                           f"(scenes: {', '.join(str(s) for s in sorted(ds.scenes)[:20])}...)")
     grid = ds.grid(scene_id)
-    objects = []
+    objects, meshes = [], [ds.scene_mesh(scene_id)]
     if with_objects and ds.object_ids is not None:
         # Movable objects at their resting poses: the first frame of the scene's first sequence.
         seq = next((s for s in ds.sequences if s.scene == scene_id), None)
@@ -41,9 +43,12 @@ def _dataset_scene(ds, scene_id: int, label: str, with_objects: bool) -> SceneIn
             for slot, oid in enumerate(ids):
                 mesh = ds.object_mesh(int(oid)) if oid >= 0 else None
                 if mesh is not None:
-                    objects.append((voxelize_mesh(mesh, voxel_size=grid.voxel_size),
-                                    np.asarray(ds.object_poses[seq.start, slot], np.float64)))
-    return SceneInfo(grid, label, objects)
+                    pose = np.asarray(ds.object_poses[seq.start, slot], np.float64)
+                    objects.append((voxelize_mesh(mesh, voxel_size=grid.voxel_size), pose))
+                    meshes.append(mesh.copy().apply_transform(pose))
+    # The video draws the scene's mesh with its objects where the dataset has one.
+    mesh = trimesh.util.concatenate(meshes) if meshes[0] is not None else None
+    return SceneInfo(grid, label, objects, mesh=mesh)
 
 
 def resolve_scene(spec, ckpt_config=None, voxel_size: float = 0.02, up: str = "y", objects: bool = True,
@@ -69,7 +74,9 @@ def resolve_scene(spec, ckpt_config=None, voxel_size: float = 0.02, up: str = "y
         if not root:
             raise ConfigError(f"scene={spec!r}: expected dataset:PATH:ID")
         return _dataset_scene(MotionDataset.open(root), _scene_id(sid, spec), spec, objects)
-    return SceneInfo(load_scene_grid(spec, voxel_size=voxel_size, up=up, unit=unit), spec)
+    # The mesh too: the video draws it and its camera's rays meet it (the grid is the mesh voxelised).
+    return SceneInfo(load_scene_grid(spec, voxel_size=voxel_size, up=up, unit=unit), spec,
+                     mesh=load_scene_mesh(spec, up=up, unit=unit))
 
 
 def _scene_id(s: str, spec: str) -> int:
