@@ -5,10 +5,13 @@ import dataclasses
 
 import numpy as np
 import pytest
+import trimesh
 
 from motiongen.body.model import BodyParams, load_body_model
 from motiongen.sampling.hand_clearance import EXTRA_MARGIN, deepest, object_fields, push_out, settle_hands
+from motiongen.scene.distance_field import MeshField
 from motiongen.scene.occupancy import OccupancyGrid
+from motiongen.scene.voxelize import voxelize_mesh
 from motiongen.skeleton import HAND_JOINTS
 
 T, VOX, DEPTH = 3, 0.01, 0.05
@@ -104,3 +107,22 @@ def test_the_other_hand_in_an_object_gets_a_target_too(bm):
     new = moved[1] == RIGHT
     assert new.sum() == T and sorted(moved[0][new].tolist()) == list(range(T))
     assert np.array_equal(moved[2][~new], p) and (moved[2][new][:, 0] > p[:, 0].min()).all()
+
+
+def test_an_object_with_its_exact_surface_is_measured_on_it_not_on_its_voxels(bm):
+    """The fingertips 4 mm into a box whose 4 cm voxels say nothing of millimetres: with the
+    box's exact surface on its grid, the depth is 4 mm, the margin only EXTRA_MARGIN, and the
+    hand moved by them is out of the box itself."""
+    body = standing()
+    verts = bm.motion_vertices(body, np.arange(T), bm.part_vertices(RIGHT)).reshape(-1, 3)
+    tip = verts[:, 0].min()
+    box = trimesh.creation.box(extents=(0.2, 0.4, 0.4))
+    box.apply_translation([tip + 0.004 - 0.1, 1.1, 0.0])
+    grid = voxelize_mesh(box, voxel_size=0.04)
+    grid.exact_surface = MeshField(box, voxel_size=0.01)
+    fields = object_fields([(grid, np.eye(4))])
+    depth, way, margin = deepest(verts, fields)
+    assert depth == pytest.approx(0.004, abs=5e-4) and margin == EXTRA_MARGIN and way @ [1.0, 0, 0] > 0.99
+    moved = verts + (depth + margin) * way
+    assert grid.exact_surface.query(moved).distance.min() > 0.004                       # out, with the margin
+    assert deepest(moved, fields)[0] == -1.0

@@ -29,7 +29,7 @@ from motiongen.annotation.vertex_contact import (TARGET_NAMES, BodySurface, Cont
                                     joint_targets, penetration_per_frame, vertex_contacts)
 from motiongen.data.contact_labels import VertexContactWriter
 from motiongen.annotation.contact_stats import penetration_table, plot_penetration, write_table
-from motiongen.scene.distance_field import MeshField, PlaneField, surface_distance
+from motiongen.scene.distance_field import OBJECT_VOXEL, MeshField, PlaneField, surface_distance
 from motiongen.data.format import SMPLX_FIELDS, MotionDataset, Sequence
 from motiongen.scene.mesh_files import MESH_SUFFIXES, load_mesh_file
 from motiongen.errors import ConfigError, DataError
@@ -38,7 +38,6 @@ from motiongen.skeleton import NUM_BODY_JOINTS
 
 # The formats scene meshes are read in, .ply (what datasets store objects as) tried first.
 OBJECT_SUFFIXES = (".ply",) + tuple(s for s in MESH_SUFFIXES if s != ".ply")
-OBJECT_VOXEL = 0.01          # objects are small: a finer solid grid than the scene's
 
 
 @dataclass

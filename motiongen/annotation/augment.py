@@ -29,11 +29,11 @@ import numpy as np
 from motiongen.body.model import BodyModel, load_body_model
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.annotation import augment_objects as edits
-from motiongen.annotation.annotate_contact import OBJECT_VOXEL, SurfaceBank, annotate_dataset, annotate_frames
+from motiongen.annotation.annotate_contact import SurfaceBank, annotate_dataset, annotate_frames
 from motiongen.annotation.augment_body import contact_points, contact_runs, initial_body, retarget, solve_body
 from motiongen.annotation.vertex_contact import BodySurface, ContactConfig
 from motiongen.data.contact_labels import VertexContact, VertexContactWriter
-from motiongen.scene.distance_field import MeshField
+from motiongen.scene.distance_field import OBJECT_VOXEL, MeshField
 from motiongen.data.format import SMPLX_FIELDS, MotionDataset, Sequence
 from motiongen.data.dataset_writer import DatasetWriter
 from motiongen.errors import ConfigError, DataError

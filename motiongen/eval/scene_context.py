@@ -12,13 +12,12 @@ from scipy.spatial import cKDTree
 
 from motiongen.annotation.vertex_contact import SceneTargets
 from motiongen.routing import walkable_map
-from motiongen.scene.distance_field import MeshField, PlaneField, surface_distance
+from motiongen.scene.distance_field import OBJECT_VOXEL, MeshField, PlaneField, surface_distance
 from motiongen.scene.voxelize import voxelize_mesh
 from motiongen.skeleton import PELVIS
 from motiongen.spans import true_runs
 
 HAND_NAMES = ("left_wrist", "right_wrist", "left_index1", "right_index1")
-OBJECT_VOXEL = 0.01          # objects are small: a finer solid grid than the scene's (as annotate-contact)
 
 
 @dataclass
@@ -147,7 +146,9 @@ class SceneContext:
             else:
                 pts, _ = trimesh.sample.sample_surface(mesh, 2000, seed=0)                   # (2000, 3)
                 pts = np.concatenate([pts, mesh.vertices])
-                self._obj_cache[oid] = (voxelize_mesh(mesh, voxel_size=self.grid.voxel_size), cKDTree(pts))
+                grid = voxelize_mesh(mesh, voxel_size=self.grid.voxel_size)
+                grid.exact_surface = self.object_field(oid)       # the sampler's hand clearance measures against it
+                self._obj_cache[oid] = (grid, cKDTree(pts))
         return self._obj_cache[oid]
 
     def objects_for_generate(self, target: tuple[int, np.ndarray] | None = None) -> list[tuple]:

@@ -3,9 +3,11 @@
 The hand reach puts a wrist 3 cm out from an object (`interactions.hand_targets`), but a hand is
 wider and longer than a wrist joint: posed on the body, its fingers or its side can end up in
 the object. After the final solve, each run of a hand target is checked on the mesh: the hand's
-vertices against every placed object (their occupancy grids, the sampler's only geometry of
-them); where the deepest one is inside, the target moves by that depth plus a margin along
-that vertex's way out, and the sample is solved again (at most `ROUNDS` times).
+vertices against every placed object (its exact surface where its grid carries one, as `sample`
+and `evaluate` give it; else its voxels, whose surface is off by up to half a voxel: 1 cm at
+2 cm voxels, most of a hand's depth in a cup); where the deepest one is inside, the target
+moves by that depth plus a margin along that vertex's way out, and the sample is solved again
+(at most `ROUNDS` times).
 """
 
 from __future__ import annotations
@@ -48,14 +50,20 @@ def settle_hands(bodies: list, reach: list, objects, bm, resolve: Callable[[int,
 
 
 def object_fields(objects) -> list:
-    """[(signed distance field, pose (4, 4), voxel size)] of placed objects [(grid, pose)], each
-    grid padded by one free voxel: a tight grid of a box is all occupied, and the field then
-    knows no way out."""
+    """[(signed distance field, pose (4, 4), margin m, grid)] of placed objects [(grid, pose)]:
+    the object's exact surface where its grid carries one (`OccupancyGrid.exact_surface`; the
+    margin beyond it EXTRA_MARGIN), else its voxels, the grid padded by one free voxel (a tight
+    grid of a box is all occupied, and the field then knows no way out), the margin half a
+    voxel more."""
     out = []
     for grid, pose in objects:
+        pose = np.asarray(pose, np.float64)
+        if grid.exact_surface is not None:
+            out.append((grid.exact_surface, pose, EXTRA_MARGIN, grid))
+            continue
         v = grid.voxel_size
         padded = OccupancyGrid.from_dense(np.pad(np.asarray(grid.dense(), bool), 1), np.asarray(grid.origin) - v, v)
-        out.append((surface_distance(padded), np.asarray(pose, np.float64), v))
+        out.append((surface_distance(padded), pose, 0.5 * v + EXTRA_MARGIN, grid))
     return out
 
 
@@ -103,17 +111,23 @@ def body_joints(bm, body, frames: np.ndarray) -> np.ndarray:
 
 
 def deepest(points: np.ndarray, fields) -> tuple[float, np.ndarray, float]:
-    """(depth m, unit direction out (3,), margin m) of the point deepest inside any object's
-    voxels (depth -1: none inside). A point in an occupied voxel less than half a voxel from a
-    free one has depth 0 and still moves out by the margin."""
+    """(depth m, unit direction out (3,), margin m) of the point deepest inside any object (its
+    exact surface, or its voxels; depth -1: none inside). A point in an occupied voxel less
+    than half a voxel from a free one has depth 0 and still moves out by the margin."""
     best = (-1.0, np.zeros(3), 0.0)
-    for field, pose, voxel in fields:
+    for field, pose, margin, grid in fields:
         local = (points - pose[:3, 3]) @ pose[:3, :3]                                       # Rᵀ(p − t)
-        inside = np.flatnonzero(field.grid.occupied(local, outside=False))
+        exact = grid.exact_surface is field
+        # Cull first: the exact surface is queried only within the grid's box (the mesh's bounds
+        # and a voxel), the voxels only where they are occupied.
+        lo, hi = grid.bounds
+        near = np.all((local >= lo) & (local <= hi), -1) if exact else field.grid.occupied(local, outside=False)
+        inside = np.flatnonzero(near)
         if not len(inside):
             continue
         q = field.query(points[inside], pose=pose)
         i = int(np.argmin(q.distance))
-        if -q.distance[i] > best[0]:
-            best = (max(float(-q.distance[i]), 0.0), q.direction[i], 0.5 * voxel + EXTRA_MARGIN)
+        if (not exact or q.distance[i] < 0) and -q.distance[i] > best[0]:
+            best = (max(float(-q.distance[i]), 0.0), q.direction[i], margin)
     return best
+

@@ -15,6 +15,7 @@ from motiongen.errors import ConfigError
 from motiongen.importers.sources import DataConfig, open_dataset
 from motiongen.routing import WalkableMap
 from motiongen.sampling.goals import Goal, plan_route
+from motiongen.scene.distance_field import OBJECT_VOXEL, MeshField
 from motiongen.scene.mesh_files import load_scene_grid, load_scene_mesh
 from motiongen.scene.voxelize import voxelize_mesh
 from motiongen.synthetic.scenes import make_scene
@@ -44,7 +45,9 @@ def _dataset_scene(ds, scene_id: int, label: str, with_objects: bool) -> SceneIn
                 mesh = ds.object_mesh(int(oid)) if oid >= 0 else None
                 if mesh is not None:
                     pose = np.asarray(ds.object_poses[seq.start, slot], np.float64)
-                    objects.append((voxelize_mesh(mesh, voxel_size=grid.voxel_size), pose))
+                    ogrid = voxelize_mesh(mesh, voxel_size=grid.voxel_size)
+                    ogrid.exact_surface = MeshField(mesh, voxel_size=OBJECT_VOXEL)   # hands measured against it
+                    objects.append((ogrid, pose))
                     meshes.append(mesh.copy().apply_transform(pose))
     # The video draws the scene's mesh with its objects where the dataset has one.
     mesh = trimesh.util.concatenate(meshes) if meshes[0] is not None else None

@@ -45,6 +45,7 @@ from motiongen.scene.voxelize import solid_faces, voxelize_mesh
 SQRT3_2 = float(np.sqrt(3.0) / 2.0)
 BOX_TEST_FACES = 4096        # meshes up to this size find candidate faces by a numpy box test, larger by r-tree
 NEAR_VOXEL = 0.04            # m: voxel of the coarse mask that spares most points the k-d tree query
+OBJECT_VOXEL = 0.01          # m: objects are small: a finer solid grid than a scene's
 
 
 @dataclass

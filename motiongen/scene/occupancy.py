@@ -28,6 +28,10 @@ class OccupancyGrid:
     voxel_size: float
     # The signed distance field, kept with the grid by `distance_field.surface_distance`.
     _distance: object = field(default=None, init=False, repr=False, compare=False)
+    # The exact signed distance to the mesh this grid voxelises (a `distance_field.MeshField`),
+    # where its maker had the mesh: placed objects, whose surface the voxels miss by up to half
+    # a voxel, which is most of a hand's depth in them (`sampling.hand_clearance`).
+    exact_surface: object = field(default=None, repr=False, compare=False)
 
     @classmethod
     def from_dense(cls, occ: np.ndarray, origin, voxel_size: float) -> "OccupancyGrid":
