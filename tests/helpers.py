@@ -1,12 +1,17 @@
-"""Small hand-made datasets with known answers for tests."""
+"""Small hand-made datasets and motions with known answers for tests."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 
+from motiongen.body.model import BodyModel
+from motiongen.body.procedural import ensure_procedural_model
+from motiongen.body.random_motion import sample_motion
 from motiongen.data.dataset_writer import DatasetWriter
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.importers.trumans_release import GridSpec
@@ -174,3 +179,14 @@ def user_error(capsys, main, argv) -> str:
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: ") and "\n" not in err and "Traceback" not in err
     return err
+
+
+def standing_body_motion(root: Path, T: int):
+    """(body model, body parameters (a namespace: global_orient, body_pose, transl, betas),
+    joints (1, T, 22, 3)) of the procedural body standing in place for T frames (seed 4),
+    the model written under `root`."""
+    bm = BodyModel(ensure_procedural_model(Path(root) / "SMPLX_NEUTRAL.npz"))
+    m = sample_motion(T, 30.0, np.random.default_rng(4), gait=False)
+    with torch.no_grad():
+        joints = bm.joints(*(torch.as_tensor(m[k]) for k in ("global_orient", "body_pose", "transl", "betas")))
+    return bm, SimpleNamespace(**m), joints.numpy()[None]

@@ -3,16 +3,15 @@ and the body hide each other by depth, it renders in forked workers, and videos 
 out (through matplotlib and numpy) where no OpenGL context can be made."""
 
 import multiprocessing as mp
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
-import torch
 import trimesh
 
 from motiongen.export import gl_render
 from motiongen.export.camera import CAM_VIEW, CameraPath, PinholeCamera
 from motiongen.export.video import render_video
+from tests.helpers import standing_body_motion
 
 pytest.importorskip("moderngl")
 if not gl_render.available():
@@ -121,19 +120,11 @@ T = 6
 
 @pytest.fixture(scope="module")
 def motion(tmp_path_factory):
-    from motiongen.body.model import BodyModel
-    from motiongen.body.procedural import ensure_procedural_model
-    from motiongen.body.random_motion import sample_motion
-
-    bm = BodyModel(ensure_procedural_model(tmp_path_factory.mktemp("body") / "SMPLX_NEUTRAL.npz"))
-    m = sample_motion(T, 30.0, np.random.default_rng(4), gait=False)
-    with torch.no_grad():
-        joints = bm.joints(*(torch.as_tensor(m[k]) for k in ("global_orient", "body_pose", "transl", "betas")))
-    joints = joints.numpy()[None]                                                    # (1, T, 22, 3)
+    bm, body, joints = standing_body_motion(tmp_path_factory.mktemp("body"), T)      # joints (1, T, 22, 3)
     pel = joints[0, :, 0].astype(np.float64)                                         # (T, 3)
     # A camera 4 m down -z from the pelvis, looking at it.
     camera = CameraPath(pel + np.array([0.0, 0.6, -4.0]), pel.copy())
-    return bm, SimpleNamespace(**m), joints, camera
+    return bm, body, joints, camera
 
 
 def _video(path, motion, **kw):

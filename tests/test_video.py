@@ -1,17 +1,13 @@
 """The sample video: the body mesh at the motion's frame rate, floor contact marked, the stick
 figure still available; and the rasteriser underneath (visibility, culling, decimation)."""
 
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
-import torch
 
-from motiongen.body.model import BodyModel
-from motiongen.body.random_motion import sample_motion
-from motiongen.body.procedural import ensure_procedural_model
 from motiongen.export.render_body import cluster_decimate, contact_anchors, facing, rasterise
 from motiongen.export.video import render_video
+from tests.helpers import standing_body_motion
 
 T = 20
 CONTACT = [7, 10, 8, 11]          # ankles and toes
@@ -82,11 +78,7 @@ def test_contact_anchor_is_where_the_span_began():
 
 @pytest.fixture(scope="module")
 def motion(tmp_path_factory):
-    bm = BodyModel(ensure_procedural_model(tmp_path_factory.mktemp("body") / "SMPLX_NEUTRAL.npz"))
-    m = sample_motion(T, 30.0, np.random.default_rng(4), gait=False)
-    with torch.no_grad():
-        joints = bm.joints(*(torch.as_tensor(m[k]) for k in ("global_orient", "body_pose", "transl", "betas")))
-    return bm, SimpleNamespace(**m), joints.numpy()[None]                             # (1, T, 22, 3)
+    return standing_body_motion(tmp_path_factory.mktemp("body"), T)                  # joints (1, T, 22, 3)
 
 
 def _frames(path):
