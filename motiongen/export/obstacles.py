@@ -59,7 +59,6 @@ def obstacle_faces(columns: np.ndarray, cell: float) -> tuple[np.ndarray, np.nda
     return np.asarray(corners, np.float64), np.asarray(normals, np.float64), np.asarray(shade)
 
 
-def obstacle_triangles(columns: np.ndarray, cell: float) -> np.ndarray:
-    """The box faces of `obstacle_faces` split into triangles (2F, 3, 3) (for OpenGL)."""
-    quads = obstacle_faces(columns, cell)[0]                                                 # (F, 4, 3)
+def quad_triangles(quads: np.ndarray) -> np.ndarray:
+    """The quads (F, 4, 3) of `obstacle_faces` split into triangles (2F, 3, 3) (for OpenGL)."""
     return np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]) if len(quads) else np.zeros((0, 3, 3))

@@ -162,6 +162,13 @@ def light_direction(cam) -> np.ndarray:
     return d / np.linalg.norm(d)
 
 
+def planted_points(anchors: np.ndarray, t: int) -> np.ndarray:
+    """(N, 2) floor points (x, z) of every sample's feet planted at frame t, from anchors
+    (S, T, C, 2) (`contact_anchors`: NaN where not planted)."""
+    a = anchors[:, t].reshape(-1, 2)
+    return a[~np.isnan(a[:, 0])]
+
+
 def contact_anchors(joints: np.ndarray, planted: np.ndarray, contact_joints) -> np.ndarray:
     """(S, T, C, 2) floor point (x, z) where each planted foot joint was put down (its position
     at the first frame of the current planted span); NaN where it is not planted.
@@ -217,8 +224,7 @@ class BodyLayer:
         """(N, 3, 3) floor-disc triangles of every body's planted feet at frame t."""
         if self.anchors is None:
             return np.zeros((0, 3, 3))
-        a = self.anchors[:, t].reshape(-1, 2)
-        return disc_triangles(a[~np.isnan(a[:, 0])])
+        return disc_triangles(planted_points(self.anchors, t))
 
     def _planted_parts(self, s: int, t: int) -> np.ndarray:
         """The body joints (n,) whose parts body s holds planted at frame t."""

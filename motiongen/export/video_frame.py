@@ -22,7 +22,7 @@ from motiongen.export import gl_render
 from motiongen.export import render_body as rb
 from motiongen.export.camera import CAM_VIEW, CameraPath, PinholeCamera
 from motiongen.export.follow_camera import follow_path, project_segments, visible_faces
-from motiongen.export.obstacles import obstacle_columns, obstacle_faces, obstacle_triangles
+from motiongen.export.obstacles import obstacle_columns, obstacle_faces, quad_triangles
 from motiongen.skeleton import NUM_BODY_JOINTS, PELVIS
 
 SAMPLE_COLOURS = ("#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf")
@@ -80,7 +80,7 @@ class FrameDrawer:
         use_gl = gl_render.available() if gl is None else gl
         self._camera_panel(mpl, S, contact_hex, bones_drawn=meshes is None, gl=use_gl)
         if self.gl is not None:
-            tri = obstacle_triangles(columns, 0.2) if scene_mesh is None else np.asarray(scene_mesh.triangles)
+            tri = quad_triangles(self.faces) if scene_mesh is None else np.asarray(scene_mesh.triangles)
             self.gl.set_scene(tri)                                                           # (F, 3, 3)
             bounds = None if scene_mesh is None else np.asarray(scene_mesh.bounds)           # (2, 3)
             self.gl.set_floor(*_floor_bounds(joints[0, :, PELVIS], goals, bounds))
@@ -218,8 +218,7 @@ class FrameDrawer:
             uv = uv[d > 0.2]
             self.cam_goals.set_data(uv[:, 0], uv[:, 1])
         if self.anchors is not None:
-            a = self.anchors[:, t].reshape(-1, 2)
-            a = a[~np.isnan(a[:, 0])]                                                    # (N, 2) planted
+            a = rb.planted_points(self.anchors, t)                                       # (N, 2)
             self.top_feet.set_data(a[:, 0], a[:, 1])
             if self.layer is None and self.gl is None:
                 uv, d = cam.project(rb.disc_triangles(a, n=16)[:, 1].reshape(-1, 3))     # rim points
@@ -233,10 +232,7 @@ class FrameDrawer:
         """The OpenGL camera panel (h, w, 3) uint8 at frame t: bodies (body style) and discs."""
         if self.layer is not None:
             return self.gl.render(cam, self.layer.posed(t), self.layer.discs(t))
-        discs = None
-        if self.anchors is not None:
-            a = self.anchors[:, t].reshape(-1, 2)
-            discs = rb.disc_triangles(a[~np.isnan(a[:, 0])])
+        discs = None if self.anchors is None else rb.disc_triangles(rb.planted_points(self.anchors, t))
         return self.gl.render(cam, (), discs)
 
 

@@ -5,6 +5,8 @@ gives none."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Callable
 
 import numpy as np
 import scipy.ndimage as ndi
@@ -27,7 +29,14 @@ class SceneInfo:
     label: str
     objects: list = field(default_factory=list)   # [(OccupancyGrid, pose (4, 4))]
     synthetic: object | None = None         # motiongen.synthetic.scenes.Scene when known
-    mesh: object | None = None              # the scene's y-up trimesh (metres), placed objects included, when known
+    # () -> the scene's y-up trimesh (metres), placed objects included; None: not known.
+    mesh_loader: Callable[[], object] | None = field(default=None, repr=False)
+
+    @cached_property
+    def mesh(self):
+        """The scene's mesh (None: not known), read on first use: only the video needs it, and a
+        mesh file's grid comes from the cache without reading the file."""
+        return None if self.mesh_loader is None else self.mesh_loader()
 
 
 def _dataset_scene(ds, scene_id: int, label: str, with_objects: bool) -> SceneInfo:
@@ -51,7 +60,7 @@ def _dataset_scene(ds, scene_id: int, label: str, with_objects: bool) -> SceneIn
                     meshes.append(mesh.copy().apply_transform(pose))
     # The video draws the scene's mesh with its objects where the dataset has one.
     mesh = trimesh.util.concatenate(meshes) if meshes[0] is not None else None
-    return SceneInfo(grid, label, objects, mesh=mesh)
+    return SceneInfo(grid, label, objects, mesh_loader=lambda: mesh)
 
 
 def resolve_scene(spec, ckpt_config=None, voxel_size: float = 0.02, up: str = "y", objects: bool = True,
@@ -77,9 +86,9 @@ def resolve_scene(spec, ckpt_config=None, voxel_size: float = 0.02, up: str = "y
         if not root:
             raise ConfigError(f"scene={spec!r}: expected dataset:PATH:ID")
         return _dataset_scene(MotionDataset.open(root), _scene_id(sid, spec), spec, objects)
-    # The mesh too: the video draws it and its camera's rays meet it (the grid is the mesh voxelised).
+    # The mesh when the video asks: it draws it and its camera's rays meet it (the grid is it voxelised).
     return SceneInfo(load_scene_grid(spec, voxel_size=voxel_size, up=up, unit=unit), spec,
-                     mesh=load_scene_mesh(spec, up=up, unit=unit))
+                     mesh_loader=lambda: load_scene_mesh(spec, up=up, unit=unit))
 
 
 def _scene_id(s: str, spec: str) -> int:
