@@ -14,6 +14,7 @@ from __future__ import annotations
 from hydra.core.config_store import ConfigStore
 
 from motiongen.body.train_mlp import TrainMLPConfig
+from motiongen.capture.train_motion_prior import TrainPriorConfig
 from motiongen.data.windows import WindowConfig
 from motiongen.diffusion import DiffusionConfig, MaskConfig
 from motiongen.eval.evaluate_config import EvaluateConfig
@@ -54,4 +55,5 @@ def register_configs() -> None:
     cs.store(name="sample_schema", node=SampleConfig)
     cs.store(name="evaluate_schema", node=EvaluateConfig)
     cs.store(name="train_mlp", node=TrainMLPConfig)
+    cs.store(name="train_motion_prior_schema", node=TrainPriorConfig)
     _registered = True

@@ -85,7 +85,7 @@ def test_command_list_and_unknown_command():
         f"error: unknown command 'trian'; expected one of {', '.join(COMMANDS)}"]
 
 
-@pytest.mark.parametrize("name", [n for n in COMMANDS if n not in ("train", "sample", "evaluate", "train-body-mlp")])
+@pytest.mark.parametrize("name", [n for n in COMMANDS if n not in ("train", "sample", "evaluate", "train-body-mlp", "train-motion-prior")])
 def test_every_small_tool_has_help_and_one_line_errors(name, capsys):
     code, out, err = motiongen_here(capsys, name, "--help")
     assert code == 0 and "keys (key=value" in out and "default:" in out, err

@@ -122,14 +122,19 @@ def lock_loss(J: torch.Tensor, ids: torch.Tensor, n: int, joints) -> torch.Tenso
 def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_init: torch.Tensor,
            cfg: RefineConfig = RefineConfig(), contact: torch.Tensor | None = None,
            fixed_betas: bool = False, contact_joints=FOOT_JOINTS, transl_init: torch.Tensor | None = None,
-           reach: tuple | None = None, fps: float = DATA_FPS):
+           reach: tuple | None = None, fps: float = DATA_FPS, target_weights: torch.Tensor | None = None,
+           extra=None):
     """Refine (T, 22, 3, 3) rotations, (T, 3) translations and (nβ,) betas to fit target
     joints (T, 22, 3) at `fps`. contact (T, C) bool flags `contact_joints` as planted (foot
     locking, weight `cfg.w_contact`; and the frames of the foot velocity term, weight
     `cfg.w_foot_vel`, when `cfg.foot_vel_mask` is "contact"; with "height" that term takes the
     `contact_joints` near the floor). reach = (frames (N,), joints (N,), points (N, 3), weights (N,)):
     joint positions to reach at those frames (weight `cfg.w_reach`; a weighted mean, so
-    weights ramp a reach in and out). Returns (rotmats, transl, betas, steps, history)."""
+    weights ramp a reach in and out). target_weights (T, 22): the joint term's weight per
+    target entry (0 where a joint was not observed; None: all 1). extra: a callable
+    (rotmats (T, 22, 3, 3), transl (T, 3), betas) -> scalar added to the loss in the joint
+    term's units (m²; the learned motion priors' terms, `motiongen.capture.prior_fit`).
+    Returns (rotmats, transl, betas, steps, history)."""
     T = target.shape[0]
     R0 = rot_init.detach()
     rot6d = matrix_to_rot6d(R0).clone().requires_grad_(True)                   # (T, 22, 6)
@@ -142,11 +147,16 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
     # Scaled so that a 1 cm mean error is a loss of about 1: keeps L-BFGS tolerances meaningful.
     scale = 1e4
     ct = _contact_terms(cfg, target, contact, contact_joints)
+    if target_weights is not None:
+        tw = target_weights.to(target.dtype)
+        tw_sum = tw.sum().clamp(min=1e-9)
+        target = torch.where(tw[..., None] > 0, target, torch.zeros_like(target))   # no NaN reaches a gradient
 
     def loss_fn():
         R = rot6d_to_matrix(rot6d)                                             # (T, 22, 3, 3)
         J = bm.joints_from_rotmats(R, transl, betas)                           # (T, 22, 3)
-        loss = cfg.w_joints * (J - target).square().sum(-1).mean()
+        d2 = (J - target).square().sum(-1)                                     # (T, 22)
+        loss = cfg.w_joints * (d2.mean() if target_weights is None else (tw * d2).sum() / tw_sum)
         if T >= 3:
             if cfg.w_smooth_joints:
                 acc = J[2:] - 2 * J[1:-1] + J[:-2]
@@ -170,6 +180,8 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
         if reach is not None and cfg.w_reach:
             f, j, p, w = reach
             loss = loss + cfg.w_reach * (w * (J[f, j] - p).square().sum(-1)).sum() / w.sum().clamp(min=1e-9)
+        if extra is not None:
+            loss = loss + extra(R, transl, betas)
         return loss * scale
 
     with torch_threads(cfg.threads):

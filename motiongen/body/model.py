@@ -213,6 +213,24 @@ class BodyModel(torch.nn.Module):
 
         R = torch.cat([R_body, part(jaw_pose, 1), part(leye_pose, 1), part(reye_pose, 1),
                        part(left_hand_pose, 15), part(right_hand_pose, 15)], -3)  # (..., 55, 3, 3)
+        return self._skin(R, transl, betas, vertex_ids)
+
+    def vertices_from_rotmats(self, rotmats: torch.Tensor, transl: torch.Tensor | None = None,
+                              betas: torch.Tensor | None = None, vertex_ids=None) -> torch.Tensor:
+        """Body rotation matrices (..., 22, 3, 3) (root first; jaw, eyes and hands at rest) ->
+        posed vertices (..., V, 3), or (..., K, 3) for vertex_ids (K,). Differentiable w.r.t.
+        rotmats, transl (..., 3) and betas (nβ,) or (..., nβ): what marker-based objectives pose."""
+        eye = torch.eye(3, dtype=self.J_template.dtype, device=self.J_template.device)
+        rest = eye.expand(rotmats.shape[:-3] + (self.J_template.shape[0] - NUM_BODY_JOINTS, 3, 3))
+        return self._skin(torch.cat([rotmats, rest], -3), transl, betas, vertex_ids)
+
+    def _skin(self, R: torch.Tensor, transl, betas, vertex_ids) -> torch.Tensor:
+        """Linear blend skinning with pose blend shapes of all 55 local rotations R
+        (..., 55, 3, 3) -> (..., V or K, 3): the one implementation behind `vertices` and
+        `vertices_from_rotmats`."""
+        dev, dt = self.J_template.device, self.J_template.dtype
+        batch = R.shape[:-3]
+        eye = torch.eye(3, dtype=dt, device=dev)
         m = self._mesh(dev, dt)
         v = m["v_template"]
         if betas is not None:

@@ -5,6 +5,7 @@
         [body.model_path=...] [length_unit=0.02] [rho=0.01] [robust=gm|l2] [stage1_frames=100]
         [chunk=500] [steps1=60] [steps2=40] [steps3=60] [init_pose=analytic|mean] [init_smooth=2]
         [reject_px=30] [max_jump=0.1] [min_views=2] [tensorboard=true] [threads=1] [device=cpu]
+        [motion_prior.smooth=PATH] [motion_prior.infill=PATH] [motion_prior.w_smooth=...] [motion_prior.w_infill=1]
 
 Inputs: `motiongen.capture.cameras` (camera file), `motiongen.capture.keypoints` (keypoint
 files). Writes into DIR: `params.npz` (AMASS-style SMPL-X, `motiongen.body.fit.save_amass_npz`),
@@ -12,6 +13,11 @@ files). Writes into DIR: `params.npz` (AMASS-style SMPL-X, `motiongen.body.fit.s
 error summaries) and, with tensorboard=true, per-stage losses under `tb/`. Files are written
 under temporary names and renamed together at the end. User mistakes print one `error: ...`
 line and exit 2.
+
+`motion_prior.smooth` / `motion_prior.infill` add LEMO's learned motion priors
+(`motiongen train-motion-prior`, `motiongen.capture.prior_fit`): the smoothness prior's latent
+term in stages 2 and 3, and in stage 3 the infilling prior's markers for the joints that have no
+3D keypoint at a frame (confidence 0, or not triangulated).
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ from motiongen.capture.cameras import load_cameras
 from motiongen.capture.keypoints import load_keypoints2d, load_keypoints3d
 from motiongen.capture.multiview import MultiviewConfig, fit_multiview
 from motiongen.capture.pose_prior import load_prior
+from motiongen.capture.prior_fit import MotionPriorConfig, PriorTerms
 from motiongen.checks import require_fps
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.errors import ConfigError
@@ -35,6 +42,7 @@ from motiongen.skeleton import BODY_JOINT_NAMES
 from motiongen.staging import StagedOutputs
 
 _D = MultiviewConfig()        # the defaults live there, once
+_MP = MotionPriorConfig()
 SPEC = {"cameras": (str, None), "keypoints2d": (str, None), "keypoints3d": (str, None), "out": (str, None),
         "layout": (str, None), "fps": (float, None), "prior": (str, "builtin"), "body.model_path": (str, None),
         "length_unit": (float, _D.length_unit), "rho": (float, _D.rho), "robust": (str, _D.robust),
@@ -42,7 +50,9 @@ SPEC = {"cameras": (str, None), "keypoints2d": (str, None), "keypoints3d": (str,
         "steps2": (int, _D.steps[1]), "steps3": (int, _D.steps[2]), "init_pose": (str, _D.init_pose),
         "init_smooth": (float, _D.init_smooth),
         "reject_px": (float, _D.reject_px), "max_jump": (float, _D.max_jump), "min_views": (int, _D.min_views),
-        "tensorboard": (bool, True), "threads": (int, _D.threads), "device": (str, "cpu")}
+        "tensorboard": (bool, True), "threads": (int, _D.threads), "device": (str, "cpu"),
+        "motion_prior.smooth": (str, None), "motion_prior.infill": (str, None),
+        "motion_prior.w_smooth": (float, _MP.w_smooth), "motion_prior.w_infill": (float, _MP.w_infill)}
 USAGE = "motiongen fit-multiview cameras=cams.json keypoints2d=kp2d.npz out=DIR [keypoints3d=...]"
 
 
@@ -88,9 +98,12 @@ def run(argv: list[str]) -> dict:
         x3d, conf3d = load_keypoints3d(opts["keypoints3d"], obs.num_frames, cams.file_points_to_world, opts["layout"])
     prior = load_prior(opts["prior"])
     bm = load_body_model(opts["body.model_path"], device=opts["device"])
+    mp = MotionPriorConfig(smooth=opts["motion_prior.smooth"], infill=opts["motion_prior.infill"],
+                           w_smooth=opts["motion_prior.w_smooth"], w_infill=opts["motion_prior.w_infill"])
+    motion = PriorTerms(bm, mp) if mp.any else None
     out = Path(opts["out"])
     out.mkdir(parents=True, exist_ok=True)
-    res, seconds = _fit(bm, cams, obs, prior, cfg, x3d, conf3d, out / "tb" if opts["tensorboard"] else None)
+    res, seconds = _fit(bm, cams, obs, prior, cfg, x3d, conf3d, out / "tb" if opts["tensorboard"] else None, motion)
     frame_err = nanmean(res.err3d, 1)                                                # (T,)
     fit = FitResult(global_orient=res.global_orient, body_pose=res.body_pose, transl=res.transl, betas=res.betas,
                     joints=res.joints, per_frame_error=frame_err, mpjpe_mlp=None, mpjpe_init=res.err3d_init,
@@ -119,7 +132,7 @@ def run(argv: list[str]) -> dict:
     return report
 
 
-def _fit(bm, cams, obs, prior, cfg: MultiviewConfig, x3d, conf3d, tb_dir: Path | None):
+def _fit(bm, cams, obs, prior, cfg: MultiviewConfig, x3d, conf3d, tb_dir: Path | None, motion=None):
     """`fit_multiview` on the loaded inputs, its per-stage losses to tensorboard in `tb_dir`
     (None: none). Returns the result and the seconds the fit took."""
     writer = None
@@ -130,7 +143,8 @@ def _fit(bm, cams, obs, prior, cfg: MultiviewConfig, x3d, conf3d, tb_dir: Path |
     t0 = time.time()
     try:
         observed = obs.observed | ((conf3d > 0).any(0) if conf3d is not None else False)
-        res = fit_multiview(bm, cams, obs.uv, obs.conf, prior, cfg, x3d, conf3d, observed=observed, writer=writer)
+        res = fit_multiview(bm, cams, obs.uv, obs.conf, prior, cfg, x3d, conf3d, observed=observed, writer=writer,
+                            motion=motion)
     finally:
         if writer is not None:
             writer.close()

@@ -166,9 +166,13 @@ def pose_init(bm: BodyModel, prior: PosePrior, x3d: np.ndarray, w3d: np.ndarray,
 class MultiviewFitter:
     """Runs the stages on one sequence; see `fit_multiview` for the entry point."""
 
-    def __init__(self, bm: BodyModel, cams: Cameras, prior: PosePrior, cfg: MultiviewConfig, writer=None):
+    def __init__(self, bm: BodyModel, cams: Cameras, prior: PosePrior, cfg: MultiviewConfig, writer=None,
+                 motion=None):
         cfg.check()
         self.bm, self.cams, self.cfg = bm, cams, cfg
+        # LEMO's motion priors (a `prior_fit.PriorTerms`, or None): the smoothness prior in
+        # stages 2 and 3, the infilling prior's markers in stage 3 (`infill` set before it).
+        self.motion, self.infill = motion, None
         self.dev, self.dt = bm.J_template.device, bm.J_template.dtype
         self.decoder = prior.decoder(self.dt, self.dev)
         self.cam_t = cams.tensors(self.dt, self.dev)
@@ -189,16 +193,24 @@ class MultiviewFitter:
         R = torch.cat([R_root[:, None], axis_angle_to_matrix(theta)], 1)         # (T, 22, 3, 3)
         return self.bm.joints_from_rotmats(R, transl * self.cfg.length_unit, betas), theta, R_root
 
-    def optimise(self, stage: int, state: dict, tg: Targets, fit_betas: bool, steps: int) -> dict:
-        """One chunk of one stage. state: rot6d (T, 6), transl (T, 3), z (T, d), betas (nβ,)."""
+    def optimise(self, stage: int, state: dict, tg: Targets, fit_betas: bool, steps: int,
+                 sl: slice = slice(None)) -> dict:
+        """One chunk (frames `sl`) of one stage. state: rot6d (T, 6), transl (T, 3), z (T, d), betas (nβ,)."""
         w = self.cfg.stages[stage]
         p = {k: v.detach().clone().requires_grad_(k != "betas" or fit_betas) for k, v in state.items()}
         params = [v for v in p.values() if v.requires_grad]
+        motion = self.motion_terms(stage, sl)
 
         def loss_terms():
             J, theta, R_root = self.pose(p["rot6d"], p["transl"], p["z"], p["betas"])
-            return terms(J, theta, R_root, p["z"], p["betas"], tg, self.project, length_unit=self.cfg.length_unit,
-                         rho=self.cfg.rho, robust=self.cfg.robust, need_2d=w.w2d > 0)
+            t = terms(J, theta, R_root, p["z"], p["betas"], tg, self.project, length_unit=self.cfg.length_unit,
+                      rho=self.cfg.rho, robust=self.cfg.robust, need_2d=w.w2d > 0)
+            if motion:
+                R = torch.cat([R_root[:, None], axis_angle_to_matrix(theta)], 1)        # (T, 22, 3, 3)
+                args = (R, p["transl"] * self.cfg.length_unit, p["betas"])
+                # The prior terms are in m² (as the joint fit's); L3D and Lsmooth are in units.
+                t.update({k: f(*args) / self.cfg.length_unit ** 2 for k, f in motion.items()})
+            return t
 
         if steps > 0:
             opt = torch.optim.LBFGS(params, lr=1.0, max_iter=steps, history_size=20, tolerance_grad=1e-9,
@@ -217,6 +229,26 @@ class MultiviewFitter:
             t = loss_terms()
             self.log.log(stage, t, total(t, w).item())
         return {k: v.detach() for k, v in p.items()}
+
+    def motion_terms(self, stage: int, sl: slice) -> dict:
+        """The motion priors' extra terms for frames `sl` of `stage`: {name: f(R, transl m, betas)}."""
+        m = self.motion
+        if m is None or stage < 2:
+            return {}
+        out = {"Lprior": m.smooth_term()} if m.smooth is not None else {}
+        if stage == 3 and self.infill is not None:
+            target, missing = self.infill
+            out["Linfill"] = m.infill_term(target[sl], missing[sl])
+        return out
+
+    def set_infill(self, state: dict, observed: np.ndarray) -> None:
+        """The infilling prior's markers for the whole sequence posed by `state`, the joints
+        observed where `observed` (T, 22) says: stage 3's targets."""
+        with torch.no_grad():
+            J, theta, R_root = self.pose(state["rot6d"], state["transl"], state["z"], state["betas"])
+            R = torch.cat([R_root[:, None], axis_angle_to_matrix(theta)], 1)
+            self.infill = self.motion.infill_targets(R, state["transl"] * self.cfg.length_unit, state["betas"],
+                                                     torch.as_tensor(observed, device=self.dev))
 
     def targets(self, x3d, w3d, uv, w2d, keypoints, sl: slice, context) -> Targets:
         """Frames `sl` of the observations, restricted to the observed joints `keypoints`."""
@@ -237,7 +269,7 @@ class MultiviewFitter:
             sl = slice(s, min(s + chunk, n))
             chunk_state = {k: (v if k == "betas" else v[sl]) for k, v in out.items()}
             tg = self.targets(*data, sl, context)
-            res = self.optimise(stage, chunk_state, tg, fit_betas, self.cfg.steps[stage - 1])
+            res = self.optimise(stage, chunk_state, tg, fit_betas, self.cfg.steps[stage - 1], sl)
             finals.append(self.log.last[stage])
             for k, v in res.items():
                 if k == "betas":
@@ -253,13 +285,15 @@ class MultiviewFitter:
 def fit_multiview(bm: BodyModel, cams: Cameras, uv: np.ndarray, conf: np.ndarray, prior: PosePrior,
                   cfg: MultiviewConfig = MultiviewConfig(), x3d: np.ndarray | None = None,
                   conf3d: np.ndarray | None = None, observed: np.ndarray | None = None,
-                  writer=None) -> MultiviewResult:
+                  writer=None, motion=None) -> MultiviewResult:
     """Fit SMPL-X to one person seen by calibrated cameras.
 
     uv (C, T, 22, 2) pixels and conf (C, T, 22) detections on our joints (`keypoints.py`);
     x3d (T, 22, 3) / conf3d (T, 22) optional 3D keypoints (else triangulated); observed (22,)
     bool: the joints the keypoint layout has (default: those ever detected); writer: a
-    TensorBoard SummaryWriter or None.
+    TensorBoard SummaryWriter or None; motion: LEMO's motion priors (`prior_fit.PriorTerms`):
+    the smoothness prior's term in stages 2 and 3, and in stage 3 the infilling prior's markers
+    for the joints without a 3D keypoint at a frame (confidence 0).
     """
     if uv.ndim != 4 or uv.shape[0] != len(cams) or uv.shape[2:] != (NUM_BODY_JOINTS, 2) or conf.shape != uv.shape[:3]:
         raise ConfigError(f"detections: expected uv ({len(cams)}, T, {NUM_BODY_JOINTS}, 2) and conf (C, T, "
@@ -277,7 +311,7 @@ def fit_multiview(bm: BodyModel, cams: Cameras, uv: np.ndarray, conf: np.ndarray
     if observed is None:
         observed = (conf > 0).any((0, 1)) | (conf3d > 0).any(0)
     keypoints = np.flatnonzero(observed)
-    fitter = MultiviewFitter(bm, cams, prior, cfg, writer)
+    fitter = MultiviewFitter(bm, cams, prior, cfg, writer, motion)
     with torch_threads(cfg.threads):
         t0 = time.time()
         Rs, transl = root_init(bm, x3d, conf3d)
@@ -296,6 +330,8 @@ def fit_multiview(bm: BodyModel, cams: Cameras, uv: np.ndarray, conf: np.ndarray
             t0 = time.time()
             n = min(cfg.stage1_frames, T) if stage == 1 else T
             chunk = n if stage == 1 else cfg.chunk
+            if stage == 3 and motion is not None and motion.infill is not None:
+                fitter.set_infill(state, conf3d > 0)
             state, finals[stage] = fitter.run_stage(stage, state, data, n, chunk, fit_betas=stage == 1)
             seconds[f"stage{stage}"] = time.time() - t0
         with torch.no_grad():

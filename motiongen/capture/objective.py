@@ -117,5 +117,13 @@ def terms(J: torch.Tensor, theta: torch.Tensor, R_root: torch.Tensor, z: torch.T
     return out
 
 
+# Terms whose weights are inside them (LEMO's motion priors, `MultiviewFitter.motion_terms`).
+PRIOR_TERMS = ("Lprior", "Linfill")
+
+
 def total(t: dict[str, torch.Tensor], w: StageWeights) -> torch.Tensor:
-    return w.w3d * t["L3D"] + w.w2d * t["L2D"] + w.z * t["Lz"] + w.betas * t["Lbeta"] + w.smooth * t["Lsmooth"]
+    out = w.w3d * t["L3D"] + w.w2d * t["L2D"] + w.z * t["Lz"] + w.betas * t["Lbeta"] + w.smooth * t["Lsmooth"]
+    for k in PRIOR_TERMS:
+        if k in t:
+            out = out + t[k]
+    return out

@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "pose-prior": ("motiongen.capture.pose_prior", "build the multi-view fit's PCA pose prior from a dataset or AMASS files"),
     "contact-sensors": ("motiongen.capture.contact_sensors", "force-sensor recordings -> per-frame joint contact (clap sync, thresholds)"),
     "train-body-mlp": ("motiongen.commands.train_body_mlp_command", "train the joints-to-SMPL-X MLP alone (Hydra, TrainMLPConfig)"),
+    "train-motion-prior": ("motiongen.commands.train_motion_prior_command", "train a LEMO motion prior (kind=smooth|infill) on marker sequences"),
 }
 
 

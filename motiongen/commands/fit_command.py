@@ -4,6 +4,8 @@
         [mlp=auto|none|PATH] [steps=40] [mesh=auto|true|false] [mesh_format=obj|glb]
         [mesh_max_frames=60] [fps=30] [unit=m|cm|mm] [device=cpu]
         [foot_vel.weight=0] [foot_vel.a=0.1] [foot_vel.z_thres=0.1] [foot_vel.mask=height|contact] [floor_y=0]
+        [motion_prior.smooth=PATH] [motion_prior.infill=PATH] [motion_prior.w_smooth=...]
+        [motion_prior.w_infill=1] [motion_prior.steps=30]
     motiongen fit input=DATASET_DIR seq=NAME out=DIR ...
 
 `input` is a joints npz (key `joints`: (T, 22, 3) or (S, T, 22, 3); 24 joints = body+index1
@@ -15,6 +17,13 @@ the procedural body model (or mesh=true), a per-frame mesh sequence under `mesh/
 feet within `foot_vel.z_thres` m of `floor_y` (mask=height) or flagged by contact labels
 (mask=contact: the dataset sequence's `contact.npy`, or the npz key `contact`) are held below
 `foot_vel.a` m/s.
+
+A NaN joint in `input` is a joint not observed at that frame (occluded, not detected): the fit
+fills it by linear interpolation over time and fits the observed joints. `motion_prior.smooth`
+and `motion_prior.infill` name LEMO motion priors (`motiongen train-motion-prior`): the
+smoothness prior's latent term replaces the joint-acceleration term, and the infilling prior
+fills the markers of the missing joints (`motiongen.capture.prior_fit`). MPJPE in the report is
+then measured on the observed joints.
 """
 
 from __future__ import annotations
@@ -30,6 +39,7 @@ import numpy as np
 from motiongen.body.fit import RefineConfig, default_mlp, fit_joints, save_amass_npz
 from motiongen.body.model import load_body_model
 from motiongen.body.train_mlp import load_mlp
+from motiongen.capture.prior_fit import MotionPriorConfig, PriorTerms, fill_linear, fit_observed
 from motiongen.checks import require_choice, require_fps, require_range
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.data.format import MotionDataset
@@ -40,6 +50,7 @@ from motiongen.rates import DATA_FPS
 from motiongen.skeleton import FOOT_JOINTS, NUM_BODY_JOINTS
 from motiongen.staging import StagedOutputs, record_outputs
 
+_MP = MotionPriorConfig()        # the motion priors' defaults live there, once
 # The files a fit writes (report.json, params.npz or params_s<i>.npz).
 OUTPUT_NAMES = re.compile(r"report\.json|params(_s\d+)?\.npz")
 
@@ -47,7 +58,10 @@ SPEC = {"input": (str, None), "out": (str, None), "seq": (str, None), "body.mode
         "body.num_betas": (int, 10), "mlp": (str, "auto"), "steps": (int, None), "mesh": (str, "auto"),
         "mesh_format": (str, "obj"), "mesh_max_frames": (int, 60), "fps": (float, None), "device": (str, "cpu"),
         "foot_vel.weight": (float, 0.0), "foot_vel.a": (float, 0.10), "foot_vel.z_thres": (float, 0.10),
-        "foot_vel.mask": (str, "height"), "floor_y": (float, 0.0), "unit": (str, "m")}
+        "foot_vel.mask": (str, "height"), "floor_y": (float, 0.0), "unit": (str, "m"),
+        "motion_prior.smooth": (str, None), "motion_prior.infill": (str, None),
+        "motion_prior.w_smooth": (float, _MP.w_smooth), "motion_prior.w_infill": (float, _MP.w_infill),
+        "motion_prior.steps": (int, _MP.steps)}
 UNITS_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 # The two farthest joints of one frame of a person (arms raised: about 2.3 m); joints farther
 # apart than this are in centimetres or millimetres (the fit then reported 16 m errors).
@@ -69,11 +83,17 @@ def parse_args(argv: list[str]) -> dict:
 def joints_in_metres(joints: np.ndarray, unit: str, desc: str) -> np.ndarray:
     """The joints scaled from `unit` to metres, refused when their size says the unit is wrong."""
     joints = joints * np.float32(UNITS_M[unit])
-    far = float(np.abs(joints).max())
+    seen = np.isfinite(joints).all(-1)                                   # (S, T, 22): NaN is a missing joint
+    if not seen.any():
+        raise DataError(desc, "joints", "every joint is missing (NaN)")
+    far = float(np.abs(joints[seen]).max())
     if far > MAX_COORD_M:
         raise DataError(desc, "joints", f"a joint {far:.3g} m from the origin with unit={unit} (at most "
                                         f"{MAX_COORD_M:g} m): not joint positions")
-    extent = float(np.median(np.ptp(joints, axis=2).max(-1)))
+    frames = seen.sum(-1) >= 2                                           # (S, T) frames with a size
+    lo = np.where(seen[..., None], joints, np.inf).min(2)
+    hi = np.where(seen[..., None], joints, -np.inf).max(2)               # (S, T, 3)
+    extent = float(np.median((hi - lo).max(-1)[frames])) if frames.any() else 0.0
     if extent > MAX_BODY_EXTENT_M:
         raise DataError(desc, "joints", f"a body {extent:.3g} m across with unit={unit} (at most "
                                         f"{MAX_BODY_EXTENT_M:g} m): the joints look like centimetres or "
@@ -115,10 +135,10 @@ def load_input(opts: dict) -> tuple[np.ndarray, float, str]:
     if not np.issubdtype(joints.dtype, np.floating):
         raise DataError(path, "joints", f"expected floating point values, found {joints.dtype}")
     joints = joints[:, :, :NUM_BODY_JOINTS].astype(np.float32)
-    bad = ~np.isfinite(joints).all(axis=(2, 3))
-    if bad.any():
+    bad = np.isinf(joints).any(axis=(2, 3))
+    if bad.any():                        # NaN is a joint not observed (filled by the fit); inf is an error
         s, t = np.argwhere(bad)[0]
-        raise DataError(path, "joints", f"non-finite value (NaN or inf) at sample {s} frame {t}")
+        raise DataError(path, "joints", f"infinite value at sample {s} frame {t} (a missing joint is NaN)")
     if not (math.isfinite(fps) and fps > 0):
         raise DataError(path, "fps", f"expected a positive number, found {fps}")
     return joints, fps, str(path)
@@ -222,17 +242,27 @@ def fit_and_write(opts: dict, out: Path, joints: np.ndarray, fps: float, desc: s
     contact = None
     if cfg.w_foot_vel and cfg.foot_vel_mask == "contact":
         contact = load_contact(opts, joints.shape[0], joints.shape[1])
+    priors = MotionPriorConfig(smooth=opts["motion_prior.smooth"], infill=opts["motion_prior.infill"],
+                               w_smooth=opts["motion_prior.w_smooth"], w_infill=opts["motion_prior.w_infill"],
+                               steps=opts["motion_prior.steps"])
+    priors.check()
+    terms = PriorTerms(bm, priors) if priors.any else None
     S = joints.shape[0]
     do_mesh = opts["mesh"] == "true" or (opts["mesh"] == "auto" and bm.is_procedural)
     report = {"input": desc, "fps": fps, "body_model": str(bm.path), "procedural_body": bm.is_procedural,
               "init": None, "samples": []}
+    missing = int((~np.isfinite(joints).all(-1)).sum())
+    if missing or priors.any:
+        report["missing_joints"] = missing
+        report["motion_prior"] = {"smooth": priors.smooth, "infill": priors.infill, "w_smooth": priors.w_smooth,
+                                  "w_infill": priors.w_infill, "steps": priors.steps}
     if cfg.w_foot_vel:
         report["foot_velocity"] = {"weight": cfg.w_foot_vel, "a": cfg.foot_vel_a, "z_thres": cfg.foot_z_thres,
                                    "mask": cfg.foot_vel_mask, "floor_y": cfg.floor_y}
     stage, meshes = StagedOutputs(out), []
     try:
         for s in range(S):
-            meshes += _fit_sample(opts, stage, report, s, joints, fps, bm, mlp, cfg, contact, do_mesh)
+            meshes += _fit_sample(opts, stage, report, s, joints, fps, bm, mlp, cfg, contact, do_mesh, terms)
         stage.tmp("report.json").write_text(json.dumps(report, indent=2))
         written = stage.commit()
     except BaseException:
@@ -243,19 +273,24 @@ def fit_and_write(opts: dict, out: Path, joints: np.ndarray, fps: float, desc: s
 
 
 def _fit_sample(opts: dict, stage: StagedOutputs, report: dict, s: int, joints: np.ndarray, fps: float, bm, mlp,
-                cfg: RefineConfig, contact, do_mesh: bool) -> list[Path]:
-    """Sample `s` fitted, its params staged and its entry added to `report`; the mesh files written."""
+                cfg: RefineConfig, contact, do_mesh: bool, terms: PriorTerms | None) -> list[Path]:
+    """Sample `s` fitted, its params staged and its entry added to `report`; the mesh files written.
+    terms: the loaded motion priors, or None."""
     out, S = stage.out, joints.shape[0]
-    fit = fit_joints(joints[s], bm, mlp, config=cfg, device=opts["device"], fps=fps,
-                     contact=None if contact is None else contact[s])
+    c = None if contact is None else contact[s]
+    if terms is None and np.isfinite(joints[s]).all():
+        fit = fit_joints(joints[s], bm, mlp, config=cfg, device=opts["device"], fps=fps, contact=c)
+    else:
+        fit = fit_observed(joints[s], bm, mlp, priors=terms.cfg if terms else MotionPriorConfig(), terms=terms,
+                           config=cfg, contact=c, device=opts["device"], fps=fps, desc=f"{opts['input']} sample {s}")
     name = "params.npz" if S == 1 else f"params_s{s:02d}.npz"
     stage.add(save_amass_npz(stage.tmp(name), fit, fps), name)
     entry = {"sample": s, "frames": int(joints.shape[1]), "params": name,
              "mpjpe_mlp_cm": None if fit.mpjpe_mlp is None else round(fit.mpjpe_mlp * 100, 4),
              "mpjpe_init_cm": round(fit.mpjpe_init * 100, 4), "mpjpe_cm": round(fit.mpjpe * 100, 4),
-             "max_frame_error_cm": round(float(fit.per_frame_error.max()) * 100, 4),
+             "max_frame_error_cm": round(float(np.nanmax(fit.per_frame_error)) * 100, 4),
              "steps": fit.steps, "seconds": round(fit.seconds, 3),
-             "foot_skating": {"input": round(foot_skating_ratio(joints[s], fps), 4),
+             "foot_skating": {"input": round(foot_skating_ratio(fill_linear(joints[s])[0], fps), 4),
                               "fit": round(foot_skating_ratio(fit.joints, fps), 4)}}
     report["init"] = fit.init
     meshes = []

@@ -95,11 +95,19 @@ def rng_state(gen: torch.Generator) -> dict:
     return s
 
 
-def _set_rng_state(s: dict, gen: torch.Generator) -> None:
+def _set_rng_state(s: dict, gen: torch.Generator, step: int) -> None:
     torch.set_rng_state(s["torch"])
     np.random.set_state(s["numpy"])
     random.setstate(s["python"])
-    gen.set_state(s["noise"])
+    try:
+        gen.set_state(s["noise"])
+    except RuntimeError:
+        # A checkpoint written on another kind of device (a CUDA generator's state on a CPU run):
+        # its noise cannot continue here, so the noise is reseeded from the step. The run goes
+        # on, but is not bitwise the one that would have continued on the first device.
+        gen.manual_seed(gen.initial_seed() + step)
+        print(f"warning: the checkpoint's noise generator is from another device type; reseeded at step {step} "
+              f"(the resumed run is not bitwise the uninterrupted one)", flush=True)
     if "cuda" in s and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(s["cuda"])
 
@@ -204,6 +212,6 @@ def _restore(run: Run, state: dict, ckpt_path: Path) -> None:
     run.step, run.best_val = int(state["step"]), float(state.get("best_val", float("inf")))
     info = run.info
     rng = state["rng"][info.rank] if info.rank < len(state["rng"]) else state["rng"][0]
-    _set_rng_state(rng, run.noise_gen)
+    _set_rng_state(rng, run.noise_gen, run.step)
     if info.is_main:
         print(f"resumed from {ckpt_path} at step {run.step}", flush=True)
