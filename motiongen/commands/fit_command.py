@@ -220,6 +220,11 @@ def fit_and_write(opts: dict, out: Path, joints: np.ndarray, fps: float, desc: s
     if opts["mesh_format"] not in ("obj", "glb", "ply"):
         raise ConfigError(f"mesh_format: expected obj, glb or ply, got {opts['mesh_format']!r}")
     bm = load_body_model(opts["body.model_path"], num_betas=opts["body.num_betas"], device=opts["device"])
+    priors = MotionPriorConfig(smooth=opts["motion_prior.smooth"], infill=opts["motion_prior.infill"],
+                               w_smooth=opts["motion_prior.w_smooth"], w_infill=opts["motion_prior.w_infill"],
+                               steps=opts["motion_prior.steps"])
+    priors.check()
+    terms = PriorTerms(bm, priors) if priors.any else None    # read before the MLP: a bad path fails fast
     mlp = opts["mlp"]
     if mlp in ("none", "None", "null", ""):
         mlp = None
@@ -242,11 +247,6 @@ def fit_and_write(opts: dict, out: Path, joints: np.ndarray, fps: float, desc: s
     contact = None
     if cfg.w_foot_vel and cfg.foot_vel_mask == "contact":
         contact = load_contact(opts, joints.shape[0], joints.shape[1])
-    priors = MotionPriorConfig(smooth=opts["motion_prior.smooth"], infill=opts["motion_prior.infill"],
-                               w_smooth=opts["motion_prior.w_smooth"], w_infill=opts["motion_prior.w_infill"],
-                               steps=opts["motion_prior.steps"])
-    priors.check()
-    terms = PriorTerms(bm, priors) if priors.any else None
     S = joints.shape[0]
     do_mesh = opts["mesh"] == "true" or (opts["mesh"] == "auto" and bm.is_procedural)
     report = {"input": desc, "fps": fps, "body_model": str(bm.path), "procedural_body": bm.is_procedural,
