@@ -4,7 +4,7 @@ Groups of `train` (see docs/config.md): `model` (tiny | paper | reference, from
 motiongen.models.PRESETS), `diffusion` (default | paper), `data` (synthetic | small | trumans |
 dataset), `window`, `mask`, `train` (default), plus `experiment` presets in
 configs/experiment/*.yaml. The keys of the other apps: `sample_schema` (SampleConfig),
-`evaluate_schema` (EvaluateConfig, which takes the `data` group too) and `train_mlp`
+`serve_schema` (ServeConfig), `evaluate_schema` (EvaluateConfig, which takes the `data` group too) and `train_mlp`
 (TrainMLPConfig); configs/<app>.yaml name their schema first in the defaults list and add
 Hydra's own settings.
 """
@@ -21,6 +21,7 @@ from motiongen.eval.evaluate_config import EvaluateConfig
 from motiongen.importers.sources import DataConfig
 from motiongen.models import PRESETS
 from motiongen.sampling.sample_config import SampleConfig
+from motiongen.serve.serve_config import ServeConfig
 from motiongen.training.train_config import TrainConfig
 
 
@@ -53,6 +54,7 @@ def register_configs() -> None:
     cs.store(group="window", name="reference", node=WindowConfig(contact_joints=()))
     cs.store(group="train", name="default", node=TrainConfig())
     cs.store(name="sample_schema", node=SampleConfig)
+    cs.store(name="serve_schema", node=ServeConfig)
     cs.store(name="evaluate_schema", node=EvaluateConfig)
     cs.store(name="train_mlp", node=TrainMLPConfig)
     cs.store(name="train_motion_prior_schema", node=TrainPriorConfig)

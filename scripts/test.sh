@@ -2,10 +2,15 @@
 # Install everything the test suite needs and run it.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-# Real CMU mocap for the BVH tests comes from Debian's assimp-testmodels.
-if [ ! -d /usr/share/assimp/models/BVH ] && command -v apt-get >/dev/null; then
+# Real CMU mocap for the BVH tests comes from Debian's assimp-testmodels; the browser tests of
+# `motiongen serve` (tests/test_serve_browser.py) drive Debian's headless chromium with playwright
+# (never `playwright install`).
+APT_PKGS=()
+[ -d /usr/share/assimp/models/BVH ] || APT_PKGS+=(assimp-testmodels)
+[ -x /usr/bin/chromium ] || APT_PKGS+=(chromium)
+if [ "${#APT_PKGS[@]}" -gt 0 ] && command -v apt-get >/dev/null; then
   SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-  $SUDO apt-get update -qq && $SUDO apt-get install -y -qq assimp-testmodels >/dev/null
+  $SUDO apt-get update -qq && $SUDO apt-get install -y -qq "${APT_PKGS[@]}" >/dev/null
 fi
 bash scripts/setup_env.sh test
 "${VENV:-.venv}/bin/python" -m pytest "$@"

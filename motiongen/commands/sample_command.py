@@ -4,7 +4,8 @@ through configs/sample.yaml; docs/sampling.md.
 
 Outputs (all written to temporary names in `out` and renamed at the very end, so a failed
 run leaves nothing half-written): motion.npz, motion.mp4 (or .gif), trajectories.png,
-summary.json, and on request body_<s>.npz (SMPL-X, AMASS layout) and motion_<s>.bvh. The
+summary.json, and on request body_<s>.npz (SMPL-X, AMASS layout), motion_<s>.bvh and
+motion.glb + scene.glb (skinned glTF, `motiongen.export.gltf`). The
 directory is locked while the run uses it, and a second run there replaces the first one's
 whole set (docs/config.md, "Outputs and locks").
 """
@@ -28,6 +29,7 @@ from motiongen.bvh.export import export_bvh
 from motiongen.commands.hydra_app import hydra_command
 from motiongen.errors import ConfigError
 from motiongen.export.camera import CameraPath
+from motiongen.export.gltf import write_motion_glb, write_scene_glb
 from motiongen.export.trajectory_plot import plot_trajectories
 from motiongen.export.video import render_video, video_suffix
 from motiongen.export.video_camera import camera_path, object_points
@@ -45,7 +47,7 @@ from motiongen.sampling.settings import Motion, SamplerSettings
 from motiongen.staging import StagedOutputs, record_outputs
 
 # The files `write_outputs` may write.
-OUTPUT_NAMES = re.compile(r"motion\.(npz|mp4|gif|bvh)|summary\.json|trajectories\.png|body\.npz|motion_\d+\.bvh|body_\d+\.npz")
+OUTPUT_NAMES = re.compile(r"motion\.(npz|mp4|gif|bvh|glb)|scene\.glb|summary\.json|trajectories\.png|body\.npz|motion_\d+\.bvh|body_\d+\.npz")
 
 
 @dataclass
@@ -193,22 +195,37 @@ def write_video(stage: StagedOutputs, cfg: SampleConfig, res: Sampled, goals_xz:
 
 
 def write_exports(stage: StagedOutputs, cfg: SampleConfig, res: Sampled) -> None:
-    """On request, each sample as BVH (bvh=true) and as SMPL-X parameters (body=true)."""
+    """On request, each sample as BVH (bvh=true), as SMPL-X parameters (body=true), and all of
+    them as skinned glTF (gltf=true)."""
     motion, S = res.motion, res.motion.num_samples
     if cfg.bvh:
         for s in range(S):
             name = "motion.bvh" if S == 1 else f"motion_{s}.bvh"
             stage.add(export_bvh(stage.tmp(name), motion.joints[s], motion.fps), name)
+    fits = body_fits(res) if cfg.body or cfg.gltf else None
     if cfg.body:
         for s in range(S):
             name = "body.npz" if S == 1 else f"body_{s}.npz"
-            if motion.bodies is not None:
-                # The motion is already a body: its own SMPL-X parameters, no second fit.
-                fit = motion.bodies[s].as_fit(motion.joints[s])
-            else:
-                fit = fit_joints(motion.joints[s][:, :22], res.body_model)
-                print(f"body fit sample {s}: MPJPE {fit.mpjpe * 1000:.1f} mm", flush=True)
-            stage.add(save_amass_npz(stage.tmp(name), fit, motion.fps), name)
+            stage.add(save_amass_npz(stage.tmp(name), fits[s], motion.fps), name)
+    if cfg.gltf:
+        # The motion's own bodies where it has them (rotation matrices as solved), else the fits.
+        bodies = motion.bodies if motion.bodies is not None else fits
+        stage.add(write_motion_glb(stage.tmp("motion.glb"), bodies, res.body_model, motion.fps), "motion.glb")
+        if res.scene.mesh is not None:
+            stage.add(write_scene_glb(stage.tmp("scene.glb"), res.scene.mesh), "scene.glb")
+
+
+def body_fits(res: Sampled) -> list:
+    """Each sample's SMPL-X parameters (`FitResult`): the motion's own body where it is one (no
+    second fit), else a fit to its joints (body projection off)."""
+    motion = res.motion
+    if motion.bodies is not None:
+        return [body.as_fit(joints) for body, joints in zip(motion.bodies, motion.joints)]
+    fits = []
+    for s in range(motion.num_samples):
+        fits.append(fit_joints(motion.joints[s][:, :22], res.body_model))
+        print(f"body fit sample {s}: MPJPE {fits[-1].mpjpe * 1000:.1f} mm", flush=True)
+    return fits
 
 
 def summary_dict(res: Sampled, sampler: SamplerSettings, figures: dict, t0: float) -> dict:

@@ -53,6 +53,7 @@ class SampleConfig(SamplerSettings, SceneRouteKeys):
     video_camera: str = "adaptive"  # adaptive (ring camera keeping body and hand in view) | follow | top
     plot: bool = True
     bvh: bool = False
+    gltf: bool = False             # motion.glb (skinned body + animation per sample) and scene.glb (the scene mesh)
     body: bool = False             # the motion's SMPL-X parameters -> body.npz (AMASS layout)
     verbose: bool = False
 
