@@ -267,7 +267,7 @@ def test_page_loads_offline_without_errors(app):
     options = app.eval_on_selector_all("#action option", "os => os.map(o => o.value)")
     assert options == app.info["actions"]
     assert app.input_value("#action") == app.info["default_action"]
-    app.wait_for_timeout(1000)  # some polling and playing
+    app.wait_for_timeout(500)  # some polling and playing
     app.rec.assert_clean()
 
 
@@ -336,7 +336,7 @@ def test_pause_button_stops_the_play_head_and_resume_restarts_it(app):
     app.click("#play")
     s = wait_paused_frame(app)
     assert app.text_content("#play") == "Resume"
-    app.wait_for_timeout(1000)
+    app.wait_for_timeout(500)
     assert app.evaluate("window.motiongen.frameShown") == s["frame_played"]
     assert state(app)["frame_played"] == s["frame_played"]
     app.click("#play")
