@@ -52,6 +52,7 @@ class LiveSession:
         self.lock = threading.Lock()
         self.wake = threading.Event()
         self.queue: list[tuple[str, list[Goal]]] = []
+        self.applying: list[tuple[str, list[Goal]]] = []   # taken from the queue, not yet published
         self.playing, self.played, self.stall_s, self._last = True, 0.0, 0.0, clock()
         self.rev, self.rollbacks, self.changed_from = 0, [], 0
         self.episode_s = 0.1                      # running mean of one episode's generation time
@@ -104,8 +105,9 @@ class LiveSession:
 
     def _pending(self) -> list[Goal]:
         """The goals pending once the queue is applied (under the lock)."""
-        cleared = any(kind == "clear" for kind, _ in self.queue)
-        return ([] if cleared else list(self.pub.goals)) + [g for kind, gs in self.queue if kind == "add" for g in gs]
+        commands = self.applying + self.queue
+        cleared = any(kind == "clear" for kind, _ in commands)
+        return ([] if cleared else list(self.pub.goals)) + [g for kind, gs in commands if kind == "add" for g in gs]
 
     def clear_goals(self) -> None:
         with self.lock:
@@ -131,8 +133,9 @@ class LiveSession:
         with self.lock:
             self._tick()
             pub, f = self.pub, self._frame_played()
-            queued = [g for kind, gs in self.queue if kind == "add" for g in gs]
-            cleared = any(kind == "clear" for kind, _ in self.queue)
+            commands = self.applying + self.queue          # requested, not yet in what was published
+            queued = [g for kind, gs in commands if kind == "add" for g in gs]
+            cleared = any(kind == "clear" for kind, _ in commands)
             # What the viewer sees: a goal is pending until playback has reached its done frame.
             ahead = [g for frame, g, _ in pub.done if frame > f]
             played = [stalled for frame, _, stalled in pub.done if frame <= f]
@@ -200,6 +203,7 @@ class LiveSession:
         with self.lock:
             self._tick()
             commands, self.queue = self.queue, []
+            self.applying = commands
             self.live.cancel.clear()
             ahead = (len(self.pub.frames["root"]) - 1) / self.fps - self.played
         if commands:
@@ -258,7 +262,7 @@ class LiveSession:
     def _publish(self) -> None:
         snap = self._snapshot()
         with self.lock:
-            self.pub = snap
+            self.pub, self.applying = snap, []
 
     def _snapshot(self) -> Published:
         live = self.live
