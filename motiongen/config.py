@@ -4,8 +4,8 @@ Groups of `train` (see docs/config.md): `model` (tiny | paper | reference, from
 motiongen.models.PRESETS), `diffusion` (default | paper), `data` (synthetic | small | trumans |
 dataset), `window`, `mask`, `train` (default), plus `experiment` presets in
 configs/experiment/*.yaml. The keys of the other apps: `sample_schema` (SampleConfig),
-`serve_schema` (ServeConfig), `evaluate_schema` (EvaluateConfig, which takes the `data` group too) and `train_mlp`
-(TrainMLPConfig); configs/<app>.yaml name their schema first in the defaults list and add
+`serve_schema` (ServeConfig), `evaluate_schema` (EvaluateConfig, which takes the `data` group too), `train_mlp`
+(TrainMLPConfig) and `distill_schema` (DistillConfig); configs/<app>.yaml name their schema first in the defaults list and add
 Hydra's own settings.
 """
 
@@ -22,6 +22,7 @@ from motiongen.importers.sources import DataConfig
 from motiongen.models import PRESETS
 from motiongen.sampling.sample_config import SampleConfig
 from motiongen.serve.serve_config import ServeConfig
+from motiongen.training.distill_config import DistillConfig
 from motiongen.training.train_config import TrainConfig
 
 
@@ -58,4 +59,5 @@ def register_configs() -> None:
     cs.store(name="evaluate_schema", node=EvaluateConfig)
     cs.store(name="train_mlp", node=TrainMLPConfig)
     cs.store(name="train_motion_prior_schema", node=TrainPriorConfig)
+    cs.store(name="distill_schema", node=DistillConfig)
     _registered = True

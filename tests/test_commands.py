@@ -85,7 +85,7 @@ def test_command_list_and_unknown_command():
         f"error: unknown command 'trian'; expected one of {', '.join(COMMANDS)}"]
 
 
-@pytest.mark.parametrize("name", [n for n in COMMANDS if n not in ("train", "sample", "serve", "evaluate", "train-body-mlp", "train-motion-prior")])
+@pytest.mark.parametrize("name", [n for n in COMMANDS if n not in ("train", "distill", "sample", "serve", "evaluate", "train-body-mlp", "train-motion-prior")])
 def test_every_small_tool_has_help_and_one_line_errors(name, capsys):
     code, out, err = motiongen_here(capsys, name, "--help")
     assert code == 0 and "keys (key=value" in out and "default:" in out, err
@@ -93,7 +93,7 @@ def test_every_small_tool_has_help_and_one_line_errors(name, capsys):
     assert code == 2 and err.startswith("error: unknown key 'bogus_key'") and len(err.strip().splitlines()) == 1
 
 
-@pytest.mark.parametrize("name", ["train", "sample", "serve", "evaluate"])
+@pytest.mark.parametrize("name", ["train", "distill", "sample", "serve", "evaluate"])
 def test_hydra_apps_through_the_command(name, tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(sys, "argv", list(sys.argv))                  # the command rewrites it for Hydra
     code, out, err = motiongen_here(capsys, name, "nonsense_key=1", f"hydra.run.dir={tmp_path / 'run'}")

@@ -74,7 +74,7 @@ def test_app_keys_come_from_the_dataclasses():
     assert lists(sample.loop) == lists(LoopConfig(smooth=1.0)) and isinstance(sample.loop.smooth, float)
     assert SamplerSettings.of(sample) == SamplerSettings(steps=8)
     ev = OmegaConf.to_object(_compose("evaluate", ["ckpt=x.pt", "data=small", "loop.smooth=0"]))
-    assert isinstance(ev, EvaluateConfig) and ev.data.size == "small" and ev.steps == 10
+    assert isinstance(ev, EvaluateConfig) and ev.data.size == "small" and ev.steps is None   # EVALUATE_STEPS, or a student's
     pc = protocol_config(ev)
     assert asdict(pc) == {**asdict(ProtocolConfig()), "static_actions": ["sit", "lie down"], "loop": {"smooth": 0.0},
                           "ablate": list(ProtocolConfig().ablate)}

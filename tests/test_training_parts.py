@@ -104,18 +104,18 @@ def test_resume_restores_rngs_and_reseeds_noise_from_another_device(capsys):
     """A checkpoint's RNG states come back exactly; a noise generator state written on another
     kind of device (a CUDA generator's 16 bytes on a CPU run) is reseeded from the step, with a
     warning, instead of stopping the resume with a traceback."""
-    from motiongen.training.setup import _set_rng_state, rng_state
+    from motiongen.training.setup import set_rng_state, rng_state
 
     gen = torch.Generator().manual_seed(5)
     torch.randn(3, generator=gen)
     saved = rng_state(gen)
     expect = torch.randn(4, generator=gen)
     other = torch.Generator().manual_seed(99)
-    _set_rng_state(saved, other, step=10)
+    set_rng_state(saved, other, step=10)
     torch.testing.assert_close(torch.randn(4, generator=other), expect)       # same device: exact
     foreign = {**saved, "noise": torch.zeros(16, dtype=torch.uint8)}          # a CUDA generator's state size
     a, b = torch.Generator().manual_seed(7), torch.Generator().manual_seed(7)
-    _set_rng_state(foreign, a, step=11000)
-    _set_rng_state(foreign, b, step=11000)
+    set_rng_state(foreign, a, step=11000)
+    set_rng_state(foreign, b, step=11000)
     assert "reseeded at step 11000" in capsys.readouterr().out
     torch.testing.assert_close(torch.randn(4, generator=a), torch.randn(4, generator=b))   # deterministic

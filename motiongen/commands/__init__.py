@@ -6,7 +6,7 @@ Every command is a module with `main(argv=None)` (argv: the arguments after the 
 None = sys.argv[1:], when the module runs as a script). A module that is only a command line is
 `motiongen/commands/<command>_command.py`; a tool that is one library module with its own
 command line (the importers, annotation and capture tools) has its `main` at the end of that
-module. `train`, `sample`, `serve`, `evaluate` and `train-body-mlp` are Hydra applications
+module. `train`, `distill`, `sample`, `serve`, `evaluate` and `train-body-mlp` are Hydra applications
 (motiongen/configs/<app>.yaml over the structured configs of motiongen/config.py; `--help`
 prints their whole config); the others take `key=value` arguments in the same override syntax
 and list their keys and defaults with `--help`. Every user error is one line on stderr and exit
@@ -21,6 +21,7 @@ import sys
 # name -> (module with `main(argv=None)`, what it does).
 COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("motiongen.commands.train_command", "train a motion model (or the joints-to-body MLP: task=joints2body)"),
+    "distill": ("motiongen.commands.distill_command", "a 1-, 2- or 4-step student of a trained model (trajectory distillation)"),
     "sample": ("motiongen.commands.sample_command", "generate motion through goal points in a scene: npz, video, BVH, SMPL-X"),
     "serve": ("motiongen.commands.serve_command", "a web page that steers the body live: click goals, pick actions, download glTF"),
     "evaluate": ("motiongen.commands.evaluate_command", "the TRUMANS static/dynamic protocol against the data and real mocap"),

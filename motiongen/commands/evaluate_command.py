@@ -17,7 +17,8 @@ from motiongen.body.model import load_body_model
 from motiongen.commands.hydra_app import hydra_command
 from motiongen.data.format import MotionDataset
 from motiongen.errors import ConfigError
-from motiongen.eval.evaluate_config import EvaluateConfig, dataset_config, mocap_paths, protocol_config
+from motiongen.eval.evaluate_config import (EVALUATE_STEPS, EvaluateConfig, dataset_config, mocap_paths,
+                                            protocol_config)
 from motiongen.eval.mocap import mocap_body_metrics
 from motiongen.eval.pairs import SETTINGS
 from motiongen.eval.protocol import evaluate
@@ -27,7 +28,7 @@ from motiongen.importers.sources import open_dataset
 from motiongen.loading.build import LoadedModel
 from motiongen.loading.keys import checkpoint_paths, load_checkpoint_model
 from motiongen.output_lock import OutputLock, claim_run_dir, refuse_output_over_input
-from motiongen.sampling.settings import SamplerSettings
+from motiongen.sampling.settings import SamplerSettings, resolve_sampler
 from motiongen.staging import record_outputs
 
 
@@ -80,6 +81,7 @@ def evaluate_and_write(cfg: EvaluateConfig, out: Path, ckpts: list[Path], settin
 def prepare(cfg: EvaluateConfig, ckpt: Path, out: Path, mocap: list) -> Prepared:
     """Load one checkpoint and its dataset, and check them against the keys and `out`."""
     loaded = load_checkpoint_model(cfg)
+    resolve_sampler(SamplerSettings.of(cfg), loaded, EVALUATE_STEPS)   # a student asked for other steps: refused now
     ds = open_dataset(dataset_config(cfg.data, loaded.config), verbose=True)
     for name in ("report.json", "report.md", "plots"):     # the report never goes over what the run reads
         refuse_output_over_input(out / name, [ckpt, ds.root, *mocap], "out")
@@ -93,7 +95,7 @@ def prepare(cfg: EvaluateConfig, ckpt: Path, out: Path, mocap: list) -> Prepared
 def evaluate_one(p: Prepared, settings: list[str], mocap_row: dict | None):
     """One checkpoint's evaluation: (its report dict, the Evaluation)."""
     cfg, loaded = p.cfg, p.loaded
-    protocol, sampler = protocol_config(cfg), SamplerSettings.of(cfg)
+    protocol, sampler = protocol_config(cfg), resolve_sampler(SamplerSettings.of(cfg), loaded, EVALUATE_STEPS)
     print(f"evaluating {p.ckpt} (step {loaded.step})", flush=True)
     ev = evaluate(loaded, p.ds, p.scenes, protocol, settings, sampler, progress=cfg.progress,
                   log=lambda m: print(m, flush=True), body_model=load_body_model(cfg.body_model))

@@ -43,7 +43,7 @@ from motiongen.sampling.goals import Goal, Route, check_actions, check_point, pl
 from motiongen.sampling.outputs import body_figures, failure_lines, motion_arrays, summary_lines
 from motiongen.sampling.sample_config import SampleConfig
 from motiongen.sampling.scene_setup import SceneInfo, default_route_goals, default_start, resolve_scene
-from motiongen.sampling.settings import Motion, SamplerSettings
+from motiongen.sampling.settings import Motion, SamplerSettings, resolve_sampler
 from motiongen.staging import StagedOutputs, record_outputs
 
 # The files `write_outputs` may write.
@@ -83,6 +83,7 @@ def refuse_over_inputs(cfg: SampleConfig, out: Path, ckpt: Path) -> None:
 
 def _generate_and_write(cfg: SampleConfig, out: Path, ckpt: Path, goals: list[Goal], file_start, t0: float) -> dict:
     loaded = load_checkpoint_model(cfg)
+    sampler = resolve_sampler(SamplerSettings.of(cfg), loaded)          # a student's steps unless steps= is given
     scene = resolve_scene(cfg.scene, loaded.config, cfg.voxel_size, cfg.scene_up, cfg.objects, cfg.scene_unit)
     fmap = walkable_map(scene.grid, cfg.body_radius, tuple(cfg.body_height)) if scene.grid is not None else None
     route = plan(cfg, scene, fmap, loaded.action_names, goals, file_start)
@@ -91,7 +92,7 @@ def _generate_and_write(cfg: SampleConfig, out: Path, ckpt: Path, goals: list[Go
     body_model = load_body_model(cfg.body_model)
     gen = torch.Generator(device=loaded.device if loaded.device.type != "mps" else "cpu").manual_seed(cfg.seed)
     motion = generate(loaded, scene.grid, route=route, walkable=fmap, start_yaw=cfg.start_yaw,
-                      objects=scene.objects, sampler=SamplerSettings.of(cfg), num_samples=cfg.num_samples,
+                      objects=scene.objects, sampler=sampler, num_samples=cfg.num_samples,
                       generator=gen, loop=cfg.loop, body_model=body_model,
                       log=(lambda m: print(m, flush=True)) if cfg.verbose else None)
     summary, lines, written = write_outputs(cfg, out, Sampled(ckpt, loaded, scene, fmap, route, motion, body_model), t0)
@@ -143,7 +144,7 @@ def write_outputs(cfg: SampleConfig, out: Path, res: Sampled, t0: float) -> tupl
     out.mkdir(parents=True, exist_ok=True)
     stage = StagedOutputs(out)
     try:
-        sampler = SamplerSettings.of(cfg)
+        sampler = resolve_sampler(SamplerSettings.of(cfg), res.loaded)
         extra = {"ckpt": str(res.ckpt), "scene": res.scene.label, "sampler": sampler.sampler, "steps": sampler.steps,
                  "eta": sampler.eta, "guidance_scale": sampler.guidance_scale, "seed": cfg.seed,
                  "precision": res.loaded.precision}

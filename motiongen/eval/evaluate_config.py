@@ -20,6 +20,11 @@ from motiongen.sampling.sample_config import MAX_SAMPLES, check_sampler_settings
 from motiongen.sampling.settings import CLEANUP_STAGES, SamplerSettings
 
 
+# Denoising steps when `steps` is unset (a model trained by `train`): k samples x pairs x scenes x
+# 2 settings motions, so fewer steps than `sample` keep the whole protocol to minutes on a CPU
+# (paper-faithful: sampler=ddpm steps=100).
+EVALUATE_STEPS = 10
+
 # The splits `evaluate` runs on: the training scenes are what the model has seen.
 SPLITS = ("val", "test")
 
@@ -62,9 +67,8 @@ class EvaluateScope(CheckpointKeys):
 # order (EvaluateScope with its CheckpointKeys, ProtocolConfig, SamplerSettings), then its own.
 @dataclass
 class EvaluateConfig(SamplerSettings, ProtocolConfig, EvaluateScope):
-    # k samples x pairs x scenes x 2 settings motions: fewer denoising steps than `sample` keep
-    # the whole protocol to minutes on a CPU (paper-faithful: sampler=ddpm steps=100).
-    steps: int = 10
+    # None = EVALUATE_STEPS, or a distilled student's own step count (`resolve_sampler`).
+    steps: int | None = None
     loop: LoopOverrides = field(default_factory=LoopOverrides)
     # Outputs.
     out: str | None = None          # directory; default: the Hydra run directory

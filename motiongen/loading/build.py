@@ -154,6 +154,9 @@ class LoadedModel:
         self.layout = Layout.for_window(self.window, self.joint_set)
         self.predict_goal = goal_predicted(cfg)
         self.fps = float(state.get("fps") or DATA_FPS)      # the training data's frame rate
+        # A distilled student's `distill` entry (method, steps, teacher...; motiongen.training.distill),
+        # None for a model trained by `motiongen train`: samplers take their defaults from it.
+        self.distill = state.get("distill")
         model, self.diffusion, _ = build_from_config(cfg, self.joint_set, self.action_names)
         part = "ema" if use_ema else "model"
         load_weights(model, state[part], path or "checkpoint", part, "its own config")

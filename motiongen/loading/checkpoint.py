@@ -38,6 +38,15 @@ def _atomic_torch_save(obj, path: Path) -> None:
         raise
 
 
+def save_atomic(obj, path: Path) -> Path:
+    """`obj` saved with torch.save at `path` through a temp file and a rename: a kill at any
+    instant leaves the previous file or the new one, never half of one."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _atomic_torch_save(obj, path)
+    return path
+
+
 def _atomic_link(src: Path, dst: Path) -> None:
     """Make dst a hard link to src (a copy where links are unsupported), atomically."""
     tmp = _temp_name(dst)
@@ -97,3 +106,14 @@ def load_checkpoint(path: str | Path, map_location="cpu") -> dict:
 def find_resume(run_dir: Path) -> Path | None:
     last = run_dir / "checkpoints" / "last.pt"
     return last if last.is_file() else None
+
+
+def student_info(path: str | Path) -> dict:
+    """The `distill` entry of a distilled student's checkpoint (motiongen.training.distill:
+    method, steps, timesteps, the teacher's path, step, guidance and step count); a model
+    trained by `motiongen train` is a user error."""
+    state = load_checkpoint(path)
+    info = state.get("distill")
+    if not isinstance(info, dict):
+        raise MotiongenError(f"{path}: not a distilled student (no 'distill' entry; `motiongen distill` makes one)")
+    return info

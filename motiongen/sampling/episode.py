@@ -20,7 +20,7 @@ from motiongen.body.solve import MotionBody
 from motiongen.errors import ConfigError
 from motiongen.geometry import local_to_world
 from motiongen.sampling.goals import Route
-from motiongen.sampling.settings import Episode, LoopConfig, SamplerSettings
+from motiongen.sampling.settings import Episode, LoopConfig, SamplerSettings, resolve_sampler
 from motiongen.skeleton import PELVIS
 
 
@@ -58,8 +58,10 @@ class LoopSpec:
 
 def loop_spec(loaded, route: Route, num_samples: int, loop: LoopConfig, start_yaw: float | None,
               sampler: SamplerSettings, generator: torch.Generator | None) -> LoopSpec:
-    """The `LoopSpec` of a call; raises ConfigError for a transition the window cannot hold and
-    warns when it pins more frames than the checkpoint was trained with."""
+    """The `LoopSpec` of a call; raises ConfigError for a transition the window cannot hold or
+    sampler settings the checkpoint cannot run (`resolve_sampler`: a distilled student's step
+    count) and warns when it pins more frames than the checkpoint was trained with."""
+    sampler = resolve_sampler(sampler, loaded)
     L, most = loaded.window.length, loaded.mask.max_transition
     k = loop.transition if loop.transition is not None else int(most)
     if not 1 <= k < L:

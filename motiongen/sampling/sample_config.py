@@ -77,9 +77,9 @@ MAX_STEPS = 10000                  # denoising steps: a DDPM of 1000 steps is th
 
 def check_sampler_settings(keys: SamplerSettings) -> None:
     """The sampler's numbers (SamplerSettings checks the sampler's name and steps >= 1)."""
-    require_range("steps", keys.steps, 1, MAX_STEPS, integer=True)
+    require_range("steps", keys.steps, 1, MAX_STEPS, integer=True, allow_none=True)
     require_range("eta", keys.eta, 0, 1)
-    require_range("guidance_scale", keys.guidance_scale, 0, 100)
+    require_range("guidance_scale", keys.guidance_scale, 0, 100, allow_none=True)
 
 
 def check_scene_route_keys(keys: SceneRouteKeys) -> None:

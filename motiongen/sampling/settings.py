@@ -3,7 +3,7 @@ configuration, one sampled episode, and the resulting `Motion`."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -19,15 +19,19 @@ REACHED, STALLED, EPISODE_LIMIT, NOT_ATTEMPTED = "reached", "stalled", "episode 
 @dataclass
 class SamplerSettings:
     sampler: str = "ddim"          # ddpm | ddim
-    steps: int = DEFAULT_STEPS     # denoising steps (ddpm: respaced when < the training steps)
+    # Denoising steps (ddpm: respaced when < the training steps); None = the checkpoint's own:
+    # DEFAULT_STEPS (25), or the step count a distilled student was trained for.
+    steps: int | None = None
     eta: float = 0.0               # DDIM stochasticity
-    guidance_scale: float = 1.0    # classifier-free guidance; 1 = conditional pass only
+    # Classifier-free guidance; 1 = conditional pass only; None = 1 (a distilled student has its
+    # teacher's guidance folded in).
+    guidance_scale: float | None = None
 
     def __post_init__(self):
         # Checked here, before any model is loaded, for every app built on these keys.
         if self.sampler not in ("ddpm", "ddim"):
             raise ConfigError(f"sampler: expected ddpm or ddim, got {self.sampler!r}")
-        if self.steps < 1:
+        if self.steps is not None and self.steps < 1:
             raise ConfigError(f"steps must be >= 1, got {self.steps}")
 
     @classmethod
@@ -35,6 +39,25 @@ class SamplerSettings:
         """These settings alone, out of an app's config built on them (the `sample` and
         `evaluate` keys)."""
         return cls(**{name: getattr(keys, name) for name in cls.__dataclass_fields__})
+
+
+def resolve_sampler(s: SamplerSettings, loaded, default_steps: int = DEFAULT_STEPS) -> SamplerSettings:
+    """The settings a run of `loaded` uses: keys left unset take the checkpoint's own values
+    (a model trained by `train`: `default_steps`, guidance 1; a distilled student, its
+    `distill` entry: its step count, guidance 1). A student asked for another step count, or
+    for a sampler other than deterministic DDIM, is refused: it was trained for neither."""
+    guidance = 1.0 if s.guidance_scale is None else float(s.guidance_scale)
+    student = getattr(loaded, "distill", None)
+    if student is None:
+        return replace(s, steps=default_steps if s.steps is None else s.steps, guidance_scale=guidance)
+    n = int(student["steps"])
+    if s.steps is not None and s.steps != n:
+        raise ConfigError(f"steps={s.steps}: this checkpoint is a {n}-step distilled student and samples in "
+                          f"{n} steps only (leave steps unset, or sample its teacher {student.get('teacher')})")
+    if s.sampler != "ddim" or s.eta != 0:
+        raise ConfigError(f"sampler={s.sampler} eta={s.eta:g}: a distilled student samples with deterministic "
+                          "DDIM (sampler=ddim eta=0), the path it was trained on")
+    return replace(s, steps=n, guidance_scale=guidance)
 
 
 @dataclass

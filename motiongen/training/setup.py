@@ -95,7 +95,7 @@ def rng_state(gen: torch.Generator) -> dict:
     return s
 
 
-def _set_rng_state(s: dict, gen: torch.Generator, step: int) -> None:
+def set_rng_state(s: dict, gen: torch.Generator, step: int) -> None:
     torch.set_rng_state(s["torch"])
     np.random.set_state(s["numpy"])
     random.setstate(s["python"])
@@ -212,6 +212,6 @@ def _restore(run: Run, state: dict, ckpt_path: Path) -> None:
     run.step, run.best_val = int(state["step"]), float(state.get("best_val", float("inf")))
     info = run.info
     rng = state["rng"][info.rank] if info.rank < len(state["rng"]) else state["rng"][0]
-    _set_rng_state(rng, run.noise_gen, run.step)
+    set_rng_state(rng, run.noise_gen, run.step)
     if info.is_main:
         print(f"resumed from {ckpt_path} at step {run.step}", flush=True)
