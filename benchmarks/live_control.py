@@ -2,7 +2,7 @@
 driving a real server (its own process, as a browser would) through the JSON API, next to the
 live sampler's real-time factor in the same run (not a timed test).
 
-    python benchmarks/live_control.py ckpt=PATH [scene=synthetic:91] [clicks=20] [threads=2] [seed=0] [steps=25]
+    python benchmarks/live_control.py ckpt=PATH [scene=synthetic:91] [clicks=20] [threads=1] [seed=0] [steps=25]
 
 A "click" is what the page does when the user clicks the floor with the body idle, or
 shift-clicks while it walks (either way the body must change where it heads): POST /api/goals
@@ -29,7 +29,7 @@ import numpy as np
 
 from motiongen.cli import parse_key_values
 
-SPEC = {"ckpt": (str, None), "scene": (str, "synthetic:91"), "clicks": (int, 20), "threads": (int, 2),
+SPEC = {"ckpt": (str, None), "scene": (str, "synthetic:91"), "clicks": (int, 20), "threads": (int, 1),
         "seed": (int, 0), "steps": (int, 25)}
 POLL_S = 0.1
 
@@ -57,31 +57,29 @@ def wait(url: str, pred, timeout: float = 60.0) -> dict:
     raise TimeoutError("the server's state never satisfied the condition")
 
 
-def post_goal(url: str, rng: np.random.Generator, bounds, replace: bool = False) -> None:
-    """POST a goal at a random point 1.5-4 m from the body that the server accepts."""
-    here = np.array(state(url)["hips"])[[0, 2]]
+def click(url: str, rng: np.random.Generator, bounds, replace: bool) -> float:
+    """One click: POST a goal at a random point 1.5-4 m from the body that the server accepts;
+    returns the latency of the accepted request in seconds."""
     (x0, z0), (x1, z1) = bounds
     for _ in range(500):
+        here = np.array(state(url)["hips"])[[0, 2]]
         p = rng.uniform([x0, z0], [x1, z1])
-        if 1.5 <= np.linalg.norm(p - here) <= 4.0:
-            goal = {"x": float(p[0]), "z": float(p[1])}
-            status, _ = api(url + "/api/goals", "POST", {"goals": [goal], "replace": replace})
-            if status == 200:
-                return
+        if not 1.5 <= np.linalg.norm(p - here) <= 4.0:
+            continue
+        t_asked = time.monotonic()
+        before = state(url)
+        t0 = time.monotonic()
+        status, _ = api(url + "/api/goals", "POST", {"goals": [{"x": float(p[0]), "z": float(p[1])}],
+                                                    "replace": replace})
+        if status != 200:
+            continue                        # off the floor, say: the server changed nothing
+        # The frame playing when the request left: the state was read half-way through its own
+        # request, and playback went on until this one was sent.
+        playing = before["time_played"] + (t0 - (t_asked + t0) / 2)
+        st = wait(url, lambda s: s["rev"] > before["rev"])
+        after = wait(url, lambda s: s["frame_played"] >= st["changed_from"])
+        return st["changed_from"] / st["fps"] - playing + (after["stall_s"] - before["stall_s"])
     raise RuntimeError("no accepted goal 1.5-4 m from the body")
-
-
-def click(url: str, rng, bounds, replace: bool) -> float:
-    """One click; returns its latency in seconds."""
-    t_asked = time.monotonic()
-    before = state(url)
-    t0 = time.monotonic()
-    # The frame playing when the click leaves: the state was read half-way through its request.
-    playing = before["time_played"] + (t0 - (t_asked + t0) / 2)
-    post_goal(url, rng, bounds, replace)
-    st = wait(url, lambda s: s["rev"] > before["rev"])
-    after = wait(url, lambda s: s["frame_played"] >= st["changed_from"])
-    return st["changed_from"] / st["fps"] - playing + (after["stall_s"] - before["stall_s"])
 
 
 def start_server(args) -> tuple[subprocess.Popen, str]:
@@ -103,7 +101,7 @@ def main(argv=None) -> None:
         for i in range(args["clicks"]):
             walking = i % 2 == 1
             if walking:                     # set off towards one goal, then change course
-                post_goal(url, rng, bounds)
+                click(url, rng, bounds, replace=False)
                 time.sleep(0.7)
             lat.append(click(url, rng, bounds, replace=walking))
             wait(url, lambda s: s["goals"] == [])

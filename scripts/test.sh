@@ -13,4 +13,12 @@ if [ "${#APT_PKGS[@]}" -gt 0 ] && command -v apt-get >/dev/null; then
   $SUDO apt-get update -qq && $SUDO apt-get install -y -qq "${APT_PKGS[@]}" >/dev/null
 fi
 bash scripts/setup_env.sh test
-"${VENV:-.venv}/bin/python" -m pytest "$@"
+PY="${VENV:-.venv}/bin/python"
+if [ "$#" -gt 0 ]; then
+  exec "$PY" -m pytest "$@"
+fi
+# Two workers, one test file each at a time (a file's fixtures are built once); most tests wait
+# on subprocesses and files as much as they compute. The tests of the live server play motion on
+# the wall clock, so they run afterwards with the machine to themselves.
+"$PY" -m pytest -n 2 --dist loadfile -m "not live"
+"$PY" -m pytest -m live

@@ -3,10 +3,13 @@ import os
 import pytest
 import torch
 
+from motiongen.body.model import BodyModel
+from motiongen.body.procedural import ensure_procedural_model
 from tests.run_inprocess import process_state_kept
 
-# Tests run on 2 shared cores; more threads only adds contention.
-torch.set_num_threads(min(2, os.cpu_count() or 1))
+# Tests run on 2 shared cores; more threads only adds contention. Under pytest-xdist (scripts/test.sh
+# runs two workers) each worker takes one.
+torch.set_num_threads(1 if os.environ.get("PYTEST_XDIST_WORKER") else min(2, os.cpu_count() or 1))
 
 
 @pytest.fixture(autouse=True)
@@ -22,3 +25,15 @@ def in_process(monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
     with process_state_kept():
         yield
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    """The procedural SMPL-X file (motiongen/body/procedural.py) in a fresh folder, once per module."""
+    return ensure_procedural_model(tmp_path_factory.mktemp("body") / "SMPLX_NEUTRAL.npz")
+
+
+@pytest.fixture(scope="module")
+def bm(model_path):
+    """The body model of `model_path`, once per module (a test may not change it)."""
+    return BodyModel(model_path)

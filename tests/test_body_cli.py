@@ -12,17 +12,11 @@ import torch
 
 from motiongen.body.model import BodyModel
 from motiongen.body.random_motion import sample_motion
-from motiongen.body.procedural import ensure_procedural_model
 from motiongen.commands.fit_command import main
 from tests.helpers import user_error
 from tests.run_inprocess import run_command
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(scope="module")
-def model_path(tmp_path_factory):
-    return ensure_procedural_model(tmp_path_factory.mktemp("body") / "SMPLX_NEUTRAL.npz")
 
 
 @pytest.fixture(scope="module")

@@ -7,17 +7,10 @@ import torch
 from motiongen.body.analytic import analytic_init
 from motiongen.body.fit import FitResult, RefineConfig, fit_joints, refine, save_amass_npz
 from motiongen.body.mlp import JointsToBodyMLP, MLPConfig, canonicalise, triplets
-from motiongen.body.model import BodyModel
 from motiongen.body.random_motion import joint_limits, sample_motion
-from motiongen.body.procedural import ensure_procedural_model
 from motiongen.body.rotations import axis_angle_to_matrix, geodesic_angle, matrix_to_axis_angle
 from motiongen.errors import ConfigError
 from motiongen.geometry import yaw_matrix
-
-
-@pytest.fixture(scope="module")
-def bm(tmp_path_factory):
-    return BodyModel(ensure_procedural_model(tmp_path_factory.mktemp("body") / "SMPLX_NEUTRAL.npz"))
 
 
 def _motion(bm, T, seed, gait=None):

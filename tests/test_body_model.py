@@ -5,18 +5,8 @@ import pytest
 import torch
 
 from motiongen.body.model import BodyModel, load_body_model
-from motiongen.body.procedural import NUM_VERTICES, SMPLX_PARENTS, build_procedural_model, ensure_procedural_model
+from motiongen.body.procedural import NUM_VERTICES, SMPLX_PARENTS, build_procedural_model
 from motiongen.errors import DataError
-
-
-@pytest.fixture(scope="module")
-def model_path(tmp_path_factory):
-    return ensure_procedural_model(tmp_path_factory.mktemp("body") / "SMPLX_NEUTRAL.npz")
-
-
-@pytest.fixture(scope="module")
-def bm(model_path):
-    return BodyModel(model_path)
 
 
 def _params(T, seed=0, scale=0.5):

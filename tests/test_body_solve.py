@@ -1,19 +1,12 @@
 """One body per motion: projection keeps bone lengths whatever the input, foot locking plants feet."""
 
 import numpy as np
-import pytest
 import torch
 
-from motiongen.body.model import load_body_model
 from motiongen.body.random_motion import sample_motion
 from motiongen.body.solve import MotionBody
 from motiongen.metrics import bone_consistency, grounded_slide
 from motiongen.skeleton import BODY, BODY_PARENTS, FOOT_JOINTS, JOINT_SETS
-
-
-@pytest.fixture(scope="module")
-def bm():
-    return load_body_model()
 
 
 def _posed(bm, T, seed, gait=False):

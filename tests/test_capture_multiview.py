@@ -11,7 +11,6 @@ from scipy.spatial.transform import Rotation
 
 from capture_rig import look_at_cameras, make_rig  # tests/ is on sys.path under pytest
 
-from motiongen.body.model import load_body_model
 from motiongen.capture.cameras import load_cameras, save_cameras
 from motiongen.capture.fit_multiview import main as fit_main
 from motiongen.capture.keypoints import layout_to_joints, load_keypoints2d, load_keypoints3d, to_body_joints
@@ -22,11 +21,6 @@ from motiongen.capture.triangulate import temporal_outliers, triangulate
 from motiongen.errors import ConfigError, DataError
 from motiongen.skeleton import BODY_JOINT_NAMES
 from tests.helpers import user_error
-
-
-@pytest.fixture(scope="module")
-def bm():
-    return load_body_model()
 
 
 @pytest.fixture(scope="module")

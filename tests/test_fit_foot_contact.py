@@ -9,7 +9,6 @@ import torch
 
 from motiongen.body.fit import RefineConfig, fit_joints, refine
 from motiongen.body.foot_velocity import foot_velocity_loss, foot_velocity_mask
-from motiongen.body.model import load_body_model
 from motiongen.body.random_motion import sample_motion
 from motiongen.errors import ConfigError
 from motiongen.commands.fit_command import main
@@ -18,11 +17,6 @@ from tests.helpers import user_error
 
 A = 0.10                                              # LEMO's a, m/s
 LEFT = FOOT_JOINTS[:2]                                # left ankle, left toe
-
-
-@pytest.fixture(scope="module")
-def bm():
-    return load_body_model()
 
 
 @pytest.fixture(scope="module")

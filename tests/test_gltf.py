@@ -11,7 +11,6 @@ import torch
 import trimesh
 
 from motiongen.body.model import BodyModel
-from motiongen.body.procedural import ensure_procedural_model
 from motiongen.body.rotations import axis_angle_to_matrix
 from motiongen.body.solve import BodyMotion, MotionBody
 from motiongen.export.gltf import body_glb_bytes, body_weights, top_influences, write_motion_glb, write_scene_glb
@@ -21,16 +20,6 @@ from tests.test_sample_cli import _checkpoint
 
 FPS = 30.0
 _TYPES = {gl.FLOAT: np.float32, gl.UNSIGNED_SHORT: np.uint16, gl.UNSIGNED_INT: np.uint32, gl.UNSIGNED_BYTE: np.uint8}
-
-
-@pytest.fixture(scope="module")
-def model_path(tmp_path_factory):
-    return ensure_procedural_model(tmp_path_factory.mktemp("body") / "SMPLX_NEUTRAL.npz")
-
-
-@pytest.fixture(scope="module")
-def bm(model_path):
-    return BodyModel(model_path)
 
 
 def make_motion(bm: BodyModel, seed: int, T: int = 12) -> BodyMotion:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from motiongen.body.model import BodyParams, load_body_model
+from motiongen.body.model import BodyParams
 from motiongen.sampling.hand_clearance import EXTRA_MARGIN, deepest, object_fields, push_out, settle_hands
 from motiongen.scene.distance_field import MeshField
 from motiongen.scene.occupancy import OccupancyGrid
@@ -16,11 +16,6 @@ from motiongen.skeleton import HAND_JOINTS
 
 T, VOX, DEPTH = 3, 0.01, 0.05
 RIGHT = HAND_JOINTS[1]
-
-
-@pytest.fixture(scope="module")
-def bm():
-    return load_body_model()
 
 
 def standing() -> BodyParams:

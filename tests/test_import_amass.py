@@ -12,7 +12,6 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from motiongen.body.fit import fit_joints, save_amass_npz
-from motiongen.body.model import load_body_model
 from motiongen.body.random_motion import sample_motion
 from motiongen.data.format import MotionDataset
 from motiongen.importers.amass import main as amass_main
@@ -23,11 +22,6 @@ from motiongen.skeleton import FOOT_JOINTS, HEAD, PELVIS
 
 ROOT = Path(__file__).resolve().parents[1]
 Y_TO_Z = Rotation.from_euler("x", 90, degrees=True)        # (x, y, z) -> (x, -z, y): y-up world -> z-up
-
-
-@pytest.fixture(scope="module")
-def bm():
-    return load_body_model()
 
 
 def known_motion(bm, frames, fps, seed):

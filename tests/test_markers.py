@@ -7,7 +7,7 @@ import torch
 import trimesh
 
 from motiongen.body.model import BodyModel, BodyParams
-from motiongen.body.procedural import build_procedural_model, ensure_procedural_model
+from motiongen.body.procedural import build_procedural_model
 from motiongen.body.rotations import axis_angle_to_matrix
 from motiongen.capture import markers as mk
 from motiongen.skeleton import BODY
@@ -22,11 +22,6 @@ ARMS = tuple(s + n for s in "LR" for n in ("SHO", "BCEP", "ELB", "ELBIN", "FRM",
 
 def _idx(names):
     return np.array([mk.MARKER_NAMES.index(n) for n in names])
-
-
-@pytest.fixture(scope="module")
-def bm(tmp_path_factory):
-    return BodyModel(ensure_procedural_model(tmp_path_factory.mktemp("body") / "SMPLX_NEUTRAL.npz"))
 
 
 @pytest.fixture(scope="module")

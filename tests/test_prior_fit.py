@@ -8,8 +8,6 @@ import pytest
 import torch
 
 from motiongen.body.fit import RefineConfig, fit_joints, refine
-from motiongen.body.model import BodyModel
-from motiongen.body.procedural import ensure_procedural_model
 from motiongen.body.random_motion import sample_motion
 from motiongen.capture.prior_fit import MotionPriorConfig, fill_linear, fit_observed
 from motiongen.commands.fit_command import main as fit_main
@@ -17,11 +15,6 @@ from motiongen.errors import ConfigError
 from tests.helpers import user_error
 
 LEGS = [1, 2, 4, 5, 7, 8, 10, 11]
-
-
-@pytest.fixture(scope="module")
-def bm(tmp_path_factory):
-    return BodyModel(ensure_procedural_model(tmp_path_factory.mktemp("body") / "SMPLX_NEUTRAL.npz"))
 
 
 @pytest.fixture(scope="module")

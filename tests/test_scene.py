@@ -317,6 +317,31 @@ def test_dynamic_object_follows_its_pose():
     assert np.array_equal(np_occ, exp)
 
 
+def test_objects_whose_box_misses_the_local_grid_are_skipped_with_the_same_answer():
+    """`local_occupancy` looks objects up only where their posed grid box meets the local grid's
+    box: the answer equals querying every object at every sample point."""
+    empty = OccupancyGrid.from_dense(np.zeros((60, 25, 60), bool), origin=[-3, -0.1, -3], voxel_size=0.1)
+    objs = GridBank([voxelize_mesh(box([-0.1, 0, -0.1], [0.1, 0.5, 0.1]), 0.02),
+                     voxelize_mesh(box([-0.3, 0, -0.2], [0.3, 0.8, 0.2]), 0.04)])
+    rng = np.random.default_rng(3)
+    B, K = 6, 3
+    poses = torch.eye(4).repeat(B, K, 1, 1)
+    for b in range(B):
+        for k in range(K):
+            poses[b, k] = torch.from_numpy(trimesh.transformations.rotation_matrix(rng.uniform(0, 6.3), [0, 1, 0]))
+            poses[b, k, [0, 2], 3] = torch.from_numpy(rng.uniform(-1.5, 1.5, 2)).float()
+    ids = torch.from_numpy(rng.integers(-1, 2, (B, K)))
+    objects = DynamicObjects(objs, ids, poses)
+    T = frames_from_pose(torch.from_numpy(rng.uniform(-1, 1, (B, 2))), torch.from_numpy(rng.uniform(0, 6.3, B))).float()
+    spec = LocalGridSpec(resolution=(16, 16, 16))
+    occ = local_occupancy(TorchOccupancy(empty), T, spec, objects=objects)
+    world = spec.points().reshape(-1, 3) @ T[:, :3, :3].double().numpy().transpose(0, 2, 1) + T[:, None, :3, 3].numpy()
+    every = objects.query(torch.from_numpy(world).float()).reshape(occ.shape)
+    assert torch.equal(occ, every) and 0 < int(every.sum())
+    near = objects.overlaps(torch.full((B, 3), -0.6), torch.full((B, 3), 0.6))
+    assert not near[ids < 0].any() and 0 < int(near.sum()) < int((ids >= 0).sum())   # some skipped, some not
+
+
 # ---------------------------------------------------------------------------------------
 # Floor map
 

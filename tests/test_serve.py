@@ -19,7 +19,7 @@ from motiongen.body.model import load_body_model
 from motiongen.export.gltf import body_glb_bytes
 from motiongen.routing import walkable_map
 from motiongen.sampling import Goal, LoopConfig, SamplerSettings
-from motiongen.sampling.live import LiveSampler, slerp
+from motiongen.sampling.live import Cancelled, LiveSampler, slerp
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.serve.launch import app_info
 from motiongen.serve.server import App, serve_in_thread
@@ -28,6 +28,9 @@ from motiongen.skeleton import PELVIS
 from tests.oracle import oracle_loaded
 from tests.run_inprocess import run_command
 from tests.test_sample_cli import _checkpoint
+
+# Real time: a server plays the motion on the wall clock (scripts/test.sh runs these alone).
+pytestmark = pytest.mark.live
 
 SAMPLER = SamplerSettings("ddim", 2)
 
@@ -90,11 +93,43 @@ def test_rollback_regenerates_from_the_kept_frame_and_restores_goals_done_after_
     keep = 10                                                   # output frames: well before the arrival
     before = live.frames_since(0)["joints"][:keep].copy()
     first = live.rollback(keep)
-    assert first == live.num_frames and keep <= first < 30
+    # The change starts at the first output frame that needs a new model frame: within one model frame.
+    assert first == live.num_frames and keep <= first < keep + live.out_fps / live.model_fps
     assert np.array_equal(live.frames_since(0)["joints"][:keep], before)
     assert [g.xz.tolist() for g in live.goals] == [[1.0, 2.0]] and live.reached == [] and done_at > first
     # Nothing after the end: a rollback past the last frame changes nothing.
     assert live.rollback(10 ** 6) == live.num_frames
+
+
+def test_an_episode_cancelled_after_denoising_changes_nothing(monkeypatch):
+    """A cancel that comes once the network is done (no network call left to stop at) stops the
+    episode before the projection: no frame, no tail, no goal progress kept; the next step
+    carries on as if the cancelled one had never run."""
+    import motiongen.sampling.autoregressive as ar
+
+    live = live_sampler()
+    live.add_goals([Goal([1.0, 3.0])])
+    live.step()
+    real, calls = ar.denoise, []
+
+    def denoise_then_cancel(*args):
+        out = real(*args)
+        calls.append(1)
+        live.cancel.set()
+        return out
+
+    n, tail, legs = live.num_frames, live.state.tail, live.progress.leg.copy()
+    joints = live.frames_since(0)["joints"].copy()
+    monkeypatch.setattr(ar, "denoise", denoise_then_cancel)
+    with pytest.raises(Cancelled):
+        live.step()
+    assert calls == [1] and live.num_frames == n and live.state.tail is tail and np.array_equal(live.progress.leg, legs)
+    monkeypatch.setattr(ar, "denoise", real)
+    live.cancel.clear()
+    live.step()
+    after = live.frames_since(0)["joints"]
+    assert live.num_frames > n and np.array_equal(after[:n], joints)
+    assert np.linalg.norm(after[n] - after[n - 1], axis=-1).max() < 0.1       # continues from the last frame
 
 
 def test_appending_while_acting_does_not_restart_the_action():
@@ -131,6 +166,27 @@ def test_session_clock_plays_pauses_and_counts_stalls():
     st = s.state()
     assert st["time_played"] == pytest.approx(end) and s.stall_s == pytest.approx(1.5)
     assert st["frame_played"] == st["frames_generated"] - 1
+
+
+def test_a_click_stops_the_episode_being_generated_only_when_frames_reach_past_the_rollback_point():
+    """A goal for an idle body stops the episode in progress when what is generated reaches past
+    the play head plus the margin (that episode's frames would be thrown away); a click soon after
+    another, when playback is about to reach the episode in progress, lets it finish (stopping it
+    would stall playback)."""
+    clock = Clock()
+    s = LiveSession(live_sampler(), None, clock=clock)           # not started: nothing generates
+    end = (s.live.num_frames - 1) / s.fps
+    s.recent.clear()
+    s.recent.append(0.2)                                         # margin = 1.15 * 0.2 + 0 + 0.03 = 0.26 s
+    clock.t = end - 0.5                                          # 0.5 s generated ahead of playback
+    s.add_goals([Goal([2.0, 2.0])])
+    assert s.live.cancel.is_set()
+    s.live.cancel.clear()
+    s.clear_goals()
+    s.live.cancel.clear()
+    clock.t = end - 0.1                                          # 0.1 s ahead: less than the margin
+    s.add_goals([Goal([2.0, 2.0])])
+    assert not s.live.cancel.is_set() and s.state()["goals"] == [{"x": 2.0, "z": 2.0, "action": None}]
 
 
 # ---- the API over HTTP --------------------------------------------------------------------------------

@@ -2,76 +2,120 @@
 tree (`analytic_init`: each joint rotated by the smallest rotation, Kabsch at the pelvis and
 spine3, that points its bones at the target joints, keeping the given twist) and temporal
 smoothing of rotations (`smooth_rotations`). Used by the fit, the sampler's body projection
-and multi-view fitting."""
+and multi-view fitting.
+
+`analytic_init` runs in float64 numpy, one batched step per tree level: the sampler projects
+every episode onto the body with it, and on a few dozen frames the cost is the number of small
+array operations (numpy's are several times cheaper than torch's), not arithmetic."""
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
-from motiongen.body.rotations import matrix_to_rot6d, rot6d_to_matrix, skew
+from motiongen.body.rotations import matrix_to_rot6d, rot6d_to_matrix
 from motiongen.skeleton import BODY_PARENTS, NUM_BODY_JOINTS
 
 _CHILDREN = {j: [c for c in range(NUM_BODY_JOINTS) if BODY_PARENTS[c] == j] for j in range(NUM_BODY_JOINTS)}
 
 
-def _kabsch(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Rotation R (..., 3, 3) minimising Σ‖R a_k − b_k‖² for vectors a, b (..., K, 3)."""
-    H = a.transpose(-1, -2) @ b                                   # (..., 3, 3) = Σ a_k b_kᵀ
-    U, _, Vh = torch.linalg.svd(H)
-    d = torch.sign(torch.det(Vh.transpose(-1, -2) @ U.transpose(-1, -2)))
-    D = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], -1))
-    return Vh.transpose(-1, -2) @ D @ U.transpose(-1, -2)
+def _depth(j: int) -> int:
+    return 0 if BODY_PARENTS[j] < 0 else 1 + _depth(BODY_PARENTS[j])
 
 
-def _min_rotation(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+# Joints by tree depth, each level split into (joints with one child, joints with several
+# children, leaves): the one-child joints of a level are swung together, the others one by one.
+_LEVELS = []
+for _d in range(max(_depth(j) for j in range(NUM_BODY_JOINTS)) + 1):
+    _js = [j for j in range(NUM_BODY_JOINTS) if _depth(j) == _d]
+    _LEVELS.append(([j for j in _js if len(_CHILDREN[j]) == 1], [j for j in _js if len(_CHILDREN[j]) > 1],
+                    [j for j in _js if not _CHILDREN[j]]))
+_ONE_CHILD = {j: _CHILDREN[j][0] for j in range(NUM_BODY_JOINTS) if len(_CHILDREN[j]) == 1}
+
+
+def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotation R (T, 3, 3) minimising Σ‖R a_k − b_k‖² for vectors a, b (T, K, 3)."""
+    H = np.einsum("tki,tkj->tij", a, b)                            # (T, 3, 3) = Σ a_k b_kᵀ
+    U, _, Vh = np.linalg.svd(H)
+    V, Ut = Vh.transpose(0, 2, 1), U.transpose(0, 2, 1)
+    d = np.sign(np.linalg.det(V @ Ut))
+    V = V.copy()
+    V[:, :, 2] *= np.where(d == 0, 1.0, d)[:, None]
+    return V @ Ut
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 3, 3) with skew(v) u = v x u."""
+    K = np.zeros(v.shape + (3,))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return K
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+
+
+def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Smallest rotation (..., 3, 3) taking direction a to direction b (..., 3)."""
-    a = torch.nn.functional.normalize(a, dim=-1)
-    b = torch.nn.functional.normalize(b, dim=-1)
-    v = torch.cross(a, b, dim=-1)
+    a, b = _unit(a), _unit(b)
     c = (a * b).sum(-1)[..., None, None]
-    K = skew(v)
-    eye = torch.eye(3, dtype=a.dtype, device=a.device).expand(K.shape)
-    R = eye + K + K @ K / (1 + c).clamp(min=1e-6)
+    K = _skew(np.cross(a, b))
+    R = np.eye(3) + K + K @ K / np.maximum(1 + c, 1e-6)
     # Opposite directions: the formula divides by ~0; turn half-way round any axis normal to a.
     # (A target can point anywhere: an untrained network's bones do.)
-    other = torch.where(a[..., :1].abs() < 0.9, torch.tensor([1.0, 0, 0], dtype=a.dtype, device=a.device),
-                        torch.tensor([0, 1.0, 0], dtype=a.dtype, device=a.device))
-    n = torch.nn.functional.normalize(torch.cross(a, other, dim=-1), dim=-1)
-    half_turn = 2 * n[..., :, None] * n[..., None, :] - eye
-    return torch.where(1 + c < 1e-3, half_turn, R)
+    other = np.where(np.abs(a[..., :1]) < 0.9, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
+    n = _unit(np.cross(a, other))
+    half_turn = 2 * n[..., :, None] * n[..., None, :] - np.eye(3)
+    return np.where(1 + c < 1e-3, half_turn, R)
+
+
+def _orthonormal(R: np.ndarray) -> np.ndarray:
+    """R (..., 3, 3) re-orthonormalised by Gram-Schmidt of its first two columns: near-opposite
+    directions leave rounding of ~1e-4 in the closed form (in float32), which compounds down the
+    chain into stretched bones."""
+    b1 = _unit(R[..., :, 0])
+    a2 = R[..., :, 1]
+    b2 = _unit(a2 - (b1 * a2).sum(-1, keepdims=True) * b1)
+    return np.stack([b1, b2, np.cross(b1, b2)], -1)
 
 
 def analytic_init(joints: torch.Tensor, rest: torch.Tensor, rot_init: torch.Tensor | None = None) -> torch.Tensor:
     """Inverse kinematics by swing correction: joints (T, 22, 3), rest joints (22, 3) (or one
     rest pose per frame, (T, 22, 3)),
     optional local rotations (T, 22, 3, 3) to start from (e.g. the MLP's) -> local rotmats
-    (T, 22, 3, 3) whose bone directions match the targets exactly (lengths are the rest ones).
+    (T, 22, 3, 3) whose bone directions match the targets exactly (lengths are the rest ones),
+    in the joints' dtype (computed in float64, not differentiable).
 
     Going down the tree, each joint's global rotation is rotated by the smallest rotation
     (Kabsch for the pelvis and spine3, which have several children) that points its bones at
     the targets. Twist about a bone is unobservable from its child alone, so it is kept from
     `rot_init` (none without it); leaves keep their initial local rotation.
     """
-    T = joints.shape[0]
-    eye = torch.eye(3, dtype=joints.dtype, device=joints.device).expand(T, 3, 3)
-    G = [None] * NUM_BODY_JOINTS                                   # global rotations (T, 3, 3)
-    R = [None] * NUM_BODY_JOINTS
-    for j in range(NUM_BODY_JOINTS):
-        p = BODY_PARENTS[j]
-        Gp = G[p] if p >= 0 else eye
-        Gc = Gp @ rot_init[:, j] if rot_init is not None else Gp   # candidate global rotation
-        kids = _CHILDREN[j]
-        if kids:
-            bones = rest[..., kids, :] - rest[..., j:j + 1, :]                         # (K, 3) or (T, K, 3)
-            a = bones.expand(T, len(kids), 3) @ Gc.transpose(-1, -2)                # bones (T, K, 3)
-            b = joints[:, kids] - joints[:, j:j + 1]                                  # targets (T, K, 3)
-            Gc = (_kabsch(a, b) if len(kids) > 1 else _min_rotation(a[:, 0], b[:, 0])) @ Gc
-            # Re-orthonormalise: near-opposite directions leave float32 rounding of ~1e-4 in the
-            # closed form, which compounds down the chain into stretched bones.
-            Gc = rot6d_to_matrix(matrix_to_rot6d(Gc))
-        G[j] = Gc
-        R[j] = Gp.transpose(-1, -2) @ Gc
-    return torch.stack(R, 1)
+    X = joints.detach().cpu().double().numpy()                                  # (T, 22, 3)
+    rest_np = rest.detach().cpu().double().numpy()
+    rest_np = np.broadcast_to(rest_np, X.shape)                                 # (T, 22, 3)
+    init = None if rot_init is None else rot_init.detach().cpu().double().numpy()
+    T = X.shape[0]
+    G = np.empty((T, NUM_BODY_JOINTS, 3, 3))                                    # global rotations
+    for one, many, leaves in _LEVELS:
+        js = one + many + leaves
+        par = [BODY_PARENTS[j] for j in js]
+        Gp = np.broadcast_to(np.eye(3), (T, len(js), 3, 3)) if par[0] < 0 else G[:, par]
+        Gc = Gp @ init[:, js] if init is not None else Gp.copy()                # candidates (T, n, 3, 3)
+        if one:
+            kid = [_ONE_CHILD[j] for j in one]
+            a = (Gc[:, :len(one)] @ (rest_np[:, kid] - rest_np[:, one])[..., None])[..., 0]     # (T, n1, 3)
+            Gc[:, :len(one)] = _orthonormal(_min_rotation(a, X[:, kid] - X[:, one]) @ Gc[:, :len(one)])
+        for i, j in enumerate(many, start=len(one)):
+            kids = _CHILDREN[j]
+            a = ((rest_np[:, kids] - rest_np[:, j:j + 1]) @ Gc[:, i].transpose(0, 2, 1))      # (T, K, 3)
+            Gc[:, i] = _orthonormal(_kabsch(a, X[:, kids] - X[:, j:j + 1]) @ Gc[:, i])
+        G[:, js] = Gc
+    par = np.array([max(p, 0) for p in BODY_PARENTS])
+    R = G[:, par].transpose(0, 1, 3, 2) @ G                                      # local = Gpᵀ G
+    R[:, 0] = G[:, 0]
+    return torch.from_numpy(R).to(device=joints.device, dtype=joints.dtype)
 
 
 def smooth_rotations(R: torch.Tensor, sigma: float) -> torch.Tensor:

@@ -153,11 +153,18 @@ def check_cleanups(loop: LoopConfig, cleanups: Mapping[str, LoopConfig]) -> None
             raise ConfigError(f"cleanups[{name!r}]: {', '.join(bad)} change(s) the episodes, not their clean-up")
 
 
-def run_episode(spec: LoopSpec, loaded, query: SceneQuery, body_model, state: EpisodeState, t: Targets) -> None:
+def run_episode(spec: LoopSpec, loaded, query: SceneQuery, body_model, state: EpisodeState, t: Targets,
+                between=None) -> None:
     """One window for all samples towards the targets `t`: condition, denoise, put on the body
-    (its shape fitted to the first window; body_model None: none), keep."""
+    (its shape fitted to the first window; body_model None: none), keep. `between()`, when
+    given, is called after each of the first two stages; it may raise to stop the episode with
+    `state` unchanged (the live sampler stops an episode whose frames a click threw away)."""
     inputs = condition_episode(spec, loaded, query, state.tail, t)
+    if between is not None:
+        between()
     raw, stance = denoise(spec, loaded, inputs)
+    if between is not None:
+        between()
     if body_model is not None and state.body is None:
         state.body = MotionBody.estimate(body_model, loaded.joint_set, raw)
     world, stance, rot = project_window(raw, stance, state.tail, inputs.pinned, spec.blend_frames, state.body)

@@ -119,7 +119,8 @@ class LiveSampler:
         self.idle_label = idle if idle >= 0 else walk
         self.state = EpisodeState()
         self.model_fps, self.out_fps = self.spec.model_fps, float(loop.out_fps)
-        # Model-rate frames so far: world joints (n, J, 3), stance (n, C), labels (n,), rotations (n, 22, 3, 3).
+        # Model-rate frames so far: world joints (n, J, 3), stance (n, C), labels (n,), rotations
+        # (n, 22, 3, 3) and the same as quaternions x, y, z, w (n, 22, 4).
         self.model = Track()
         # Output-rate frames so far: root = pelvis (N, 3), quats x, y, z, w (N, 22, 4), joints (N, J, 3), labels (N,).
         self.out = Track()
@@ -143,6 +144,9 @@ class LiveSampler:
         self._hook.remove()
 
     def _check_cancel(self, module, args) -> None:
+        self._stop_if_cancelled()
+
+    def _stop_if_cancelled(self) -> None:
         if self.cancel.is_set():
             raise Cancelled()
 
@@ -211,7 +215,11 @@ class LiveSampler:
         replan=False leaves the route to `replan` (or to the `add_goals` that follows).
         Returns the first output frame that will change (num_frames when nothing was forgotten)."""
         k = self.spec.transition
-        keep = max(k, int(np.ceil(keep_out * self.model_fps / self.out_fps - 1e-9)) + 1)
+        # The fewest model frames whose output frames (`out_frames`) reach keep_out: output frame
+        # keep_out - 1 lies at model time (keep_out - 1)·ρ and needs the model frame after it only
+        # when that time is not a whole frame. Keeping more would put off the change by up to a
+        # model frame (1/15 s at the recipes' rate), all of it click latency.
+        keep = max(k, int(np.ceil((keep_out - 1) * self.model_fps / self.out_fps - 1e-9)) + 1)
         if keep >= len(self.model):
             return self.num_frames
         self.model.truncate(keep)
@@ -240,11 +248,12 @@ class LiveSampler:
         """Run one episode; keep its new model frames, extend the output. Returns them (n, J, 3)."""
         if self.reach is not None and self.state.tail is not None:
             t.hand, t.hand_point = hand_goals(self.reach, self.state.tail.joints, t.label)
-        run_episode(self.spec, self.loaded, self.query, self.body_model, self.state, t)
+        run_episode(self.spec, self.loaded, self.query, self.body_model, self.state, t, between=self._stop_if_cancelled)
         st = self.state
         new = st.frames[-1][0]
-        self.model.append(joints=new, stance=st.stances[-1][0], labels=st.labels[-1][0],
-                          rot=st.rots[-1][0].numpy())
+        rot = st.rots[-1][0].numpy()
+        # Quaternions once per model frame: resampling reads each one for several output frames.
+        self.model.append(joints=new, stance=st.stances[-1][0], labels=st.labels[-1][0], rot=rot, quat=_quats(rot))
         # The tracks are the record; the episode lists would only grow.
         for lst in (st.frames, st.raws, st.stances, st.rots, st.labels, st.episodes):
             lst.clear()
@@ -313,7 +322,7 @@ class LiveSampler:
         w = (t - a).clip(0, 1)[:, None]
         b = np.minimum(a + 1, len(m) - 1)
         root = (1 - w) * m["joints"][a, PELVIS] + w * m["joints"][b, PELVIS]                    # (n, 3)
-        q = slerp(_quats(m["rot"][a]), _quats(m["rot"][b]), w)                                # (n, 22, 4)
+        q = slerp(m["quat"][a], m["quat"][b], w)                                              # (n, 22, 4)
         rot = torch.as_tensor(Rotation.from_quat(q.reshape(-1, 4)).as_matrix().reshape(len(t), -1, 3, 3))
         body = self.state.body
         transl = torch.as_tensor(root) - body.rest[0, 0].double()

@@ -128,6 +128,10 @@ class LocalGridSpec:
         yy, xx, zz = np.meshgrid(y, x, z, indexing="ij")
         return np.stack([xx, yy, zz], -1)
 
+    def corners(self) -> np.ndarray:
+        """(8, 3) local corners of the box the grid spans (every sample point lies inside it)."""
+        return np.array([[x, y, z] for x in self.x_range for y in self.y_range for z in self.z_range], np.float64)
+
     @property
     def out_shape(self) -> tuple[int, int, int]:
         """(Hy, Hx, Hz)."""
@@ -170,15 +174,30 @@ class DynamicObjects:
             ids[~valid.bool().to(poses.device), 0] = -1
         return cls(bank, ids, poses[:, None])
 
-    def query(self, points: torch.Tensor) -> torch.Tensor:
-        """(B, N) bool: some object occupies the world point (B, N, 3). Outside an object's grid is free."""
+    def overlaps(self, lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
+        """(B, K) bool: slot k's grid box, posed in the world, meets the world box [lo, hi] (B, 3)
+        of item b (False for an empty slot)."""
+        dev, dt = self.bank.device, self.bank.dtype
+        ids = self.ids.to(dev)
+        g = ids.clamp(min=0)
+        o, size = self.bank.origin[g], self.bank.shape[g].to(dt) * self.bank.voxel[g][..., None]   # (B, K, 3)
+        unit = torch.tensor([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=dt, device=dev)
+        corners = o[:, :, None] + unit * size[:, :, None]                                        # (B, K, 8, 3)
+        poses = self.poses.to(dev, dt)
+        world = corners @ poses[..., :3, :3].transpose(-1, -2) + poses[:, :, None, :3, 3]               # (B, K, 8, 3)
+        lo, hi = lo.to(dev, dt)[:, None], hi.to(dev, dt)[:, None]                                 # (B, 1, 3)
+        return (ids >= 0) & torch.all((world.amin(2) <= hi) & (world.amax(2) >= lo), -1)
+
+    def query(self, points: torch.Tensor, near: torch.Tensor | None = None) -> torch.Tensor:
+        """(B, N) bool: some object occupies the world point (B, N, 3). Outside an object's grid is
+        free; near (B, K) bool, when given, names the slots that can be hit at all (`overlaps`)."""
         dev = self.bank.device
         points = points.to(dev, self.bank.dtype)
         occ = torch.zeros(points.shape[:2], dtype=torch.bool, device=dev)
         ids = self.ids.to(dev)
         to_obj = invert_rigid(self.poses.to(dev, self.bank.dtype))                      # (B, K, 4, 4)
         for k in range(ids.shape[1]):
-            valid = ids[:, k] >= 0                                                       # (B,)
+            valid = (ids[:, k] >= 0) & (True if near is None else near[:, k].to(dev))   # (B,)
             if not valid.any():
                 continue
             R, t = to_obj[:, k, :3, :3], to_obj[:, k, :3, 3]
@@ -215,7 +234,12 @@ def local_occupancy(scene: GridBank, to_world: torch.Tensor, spec: LocalGridSpec
         # The batched base form, also when `scene` is a TorchOccupancy (whose query is per point).
         occ = GridBank.query(scene, world, scene_index, outside)                         # (B, V)
     if objects is not None:
-        occ |= objects.query(world if world is not None else _to_world(T, local.reshape(-1, 3)))
+        # Objects far from the body (most of them, most of the time) are skipped: their grid box
+        # misses the local grid's box, and outside its grid an object is free.
+        box = _to_world(T, torch.as_tensor(spec.corners(), dtype=dt, device=dev))       # (B, 8, 3)
+        near = objects.overlaps(box.amin(1), box.amax(1))                               # (B, K)
+        if bool(near.any()):
+            occ |= objects.query(world if world is not None else _to_world(T, local.reshape(-1, 3)), near)
     return occ.reshape(B, Hy, Hx, Hz)
 
 

@@ -16,6 +16,10 @@ LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 @dataclass
 class ServeConfig(SamplerSettings, SceneRouteKeys):
+    # One torch thread for the generation: on 2 cores the other serves the requests, the clock
+    # and the Python half of each episode; two threads made each episode slower and the click
+    # latency longer (docs/results.md#live-control). 0 = torch's default (one per core).
+    threads: int = 1
     seed: int = 0
     host: str = "127.0.0.1"        # the interface to listen on; anything but loopback is reachable from other machines
     port: int = 8000               # 0: a free port

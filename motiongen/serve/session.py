@@ -116,11 +116,17 @@ class LiveSession:
 
     def _queue(self, kind: str, goals: list[Goal], heads: bool) -> None:
         """Queue a command (under the lock) and wake the thread; when it changes where the body
-        heads, stop the episode being generated too: its frames lie past the rollback point. The
-        thread clears `cancel` under the lock as it takes the queue, so no stop outlives its command."""
+        heads, stop the episode being generated too, when its frames lie past the rollback point:
+        what is generated reaches past it. (Otherwise the episode is what playback reaches next,
+        a click soon after another: stopping it would stall playback, so it finishes and the
+        rollback drops what it made past the point.) The thread clears `cancel` under the lock as
+        it takes the queue, so no stop outlives its command."""
         self.queue.append((kind, goals))
         if heads:
-            self.live.cancel.set()
+            self._tick()
+            end = (len(self.pub.frames["root"]) - 1) / self.fps
+            if end > self.played + self._margin_s():
+                self.live.cancel.set()
         self.wake.set()
 
     def set_playing(self, playing: bool) -> None:
@@ -218,9 +224,10 @@ class LiveSession:
         except Cancelled:
             return
         dt = time.perf_counter() - t
-        self.episode_s = 0.8 * self.episode_s + 0.2 * dt
-        self.recent.append(dt)
-        self.gen_s, self.gen_frames = self.gen_s + dt, self.gen_frames + n
+        with self.lock:                            # requests read the margin (`_queue`)
+            self.episode_s = 0.8 * self.episode_s + 0.2 * dt
+            self.recent.append(dt)
+            self.gen_s, self.gen_frames = self.gen_s + dt, self.gen_frames + n
         self._publish()
 
     def _apply(self, commands: list) -> None:
@@ -251,7 +258,8 @@ class LiveSession:
                 live.clear_goals()
         self._publish()
         if heads:
-            self.recent_apply.append(time.perf_counter() - t)
+            with self.lock:
+                self.recent_apply.append(time.perf_counter() - t)
 
     def _margin_s(self) -> float:
         """How far past the play head a rollback keeps: the next episode's generation time, taken as
