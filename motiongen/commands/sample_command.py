@@ -20,7 +20,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 from omegaconf import DictConfig, OmegaConf
 
 from motiongen.body.fit import fit_joints, save_amass_npz
@@ -34,15 +33,15 @@ from motiongen.export.trajectory_plot import plot_trajectories
 from motiongen.export.video import render_video, video_suffix
 from motiongen.export.video_camera import camera_path, object_points
 from motiongen.loading.build import LoadedModel
-from motiongen.loading.keys import checkpoint_path, load_checkpoint_model
+from motiongen.loading.keys import checkpoint_path, load_checkpoint_model, noise_generator
 from motiongen.output_lock import OutputLock, claim_run_dir, refuse_output_over_input
-from motiongen.routing import WalkableMap, walkable_map
+from motiongen.routing import WalkableMap
 from motiongen.sampling.autoregressive import generate
 from motiongen.sampling.goal_input import load_goals_file, parse_goals
 from motiongen.sampling.goals import Goal, Route, check_actions, check_point, plan_route
 from motiongen.sampling.outputs import body_figures, failure_lines, motion_arrays, summary_lines
 from motiongen.sampling.sample_config import SampleConfig
-from motiongen.sampling.scene_setup import SceneInfo, default_route_goals, default_start, resolve_scene
+from motiongen.sampling.scene_setup import SceneInfo, default_route_goals, default_start, scene_for_keys
 from motiongen.sampling.settings import Motion, SamplerSettings, resolve_sampler
 from motiongen.staging import StagedOutputs, record_outputs
 
@@ -84,13 +83,12 @@ def refuse_over_inputs(cfg: SampleConfig, out: Path, ckpt: Path) -> None:
 def _generate_and_write(cfg: SampleConfig, out: Path, ckpt: Path, goals: list[Goal], file_start, t0: float) -> dict:
     loaded = load_checkpoint_model(cfg)
     sampler = resolve_sampler(SamplerSettings.of(cfg), loaded)          # a student's steps unless steps= is given
-    scene = resolve_scene(cfg.scene, loaded.config, cfg.voxel_size, cfg.scene_up, cfg.objects, cfg.scene_unit)
-    fmap = walkable_map(scene.grid, cfg.body_radius, tuple(cfg.body_height)) if scene.grid is not None else None
+    scene, fmap = scene_for_keys(cfg, loaded.config)
     route = plan(cfg, scene, fmap, loaded.action_names, goals, file_start)
     print(f"sampling: {ckpt} (step {loaded.step}, {loaded.precision} layers) in {scene.label}, {len(route.goals)} "
           f"goal(s), {len(route.subgoals)} subgoals, {cfg.num_samples} sample(s)", flush=True)
     body_model = load_body_model(cfg.body_model)
-    gen = torch.Generator(device=loaded.device if loaded.device.type != "mps" else "cpu").manual_seed(cfg.seed)
+    gen = noise_generator(loaded, cfg.seed)
     motion = generate(loaded, scene.grid, route=route, walkable=fmap, start_yaw=cfg.start_yaw,
                       objects=scene.objects, sampler=sampler, num_samples=cfg.num_samples,
                       generator=gen, loop=cfg.loop, body_model=body_model,

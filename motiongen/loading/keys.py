@@ -50,3 +50,9 @@ def load_checkpoint_model(keys: CheckpointKeys) -> LoadedModel:
     if keys.threads > 0:
         torch.set_num_threads(keys.threads)
     return load_model(ckpt, keys.device, precision=keys.precision)
+
+
+def noise_generator(loaded: LoadedModel, seed: int) -> torch.Generator:
+    """The diffusion noise's generator, seeded, on the model's device (on the CPU for MPS, which
+    has no generator of its own)."""
+    return torch.Generator(device=loaded.device if loaded.device.type != "mps" else "cpu").manual_seed(seed)

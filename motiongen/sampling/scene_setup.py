@@ -15,7 +15,7 @@ import trimesh
 from motiongen.data.format import MotionDataset
 from motiongen.errors import ConfigError
 from motiongen.importers.sources import DataConfig, open_dataset
-from motiongen.routing import WalkableMap
+from motiongen.routing import WalkableMap, walkable_map
 from motiongen.sampling.goals import Goal, plan_route
 from motiongen.scene.distance_field import OBJECT_VOXEL, MeshField
 from motiongen.scene.mesh_files import load_scene_grid, load_scene_mesh
@@ -89,6 +89,15 @@ def resolve_scene(spec, ckpt_config=None, voxel_size: float = 0.02, up: str = "y
     # The mesh when the video asks: it draws it and its camera's rays meet it (the grid is it voxelised).
     return SceneInfo(load_scene_grid(spec, voxel_size=voxel_size, up=up, unit=unit), spec,
                      mesh_loader=lambda: load_scene_mesh(spec, up=up, unit=unit))
+
+
+def scene_for_keys(keys, ckpt_config=None) -> tuple[SceneInfo, WalkableMap | None]:
+    """The scene `keys` name (`sample_config.SceneRouteKeys`: scene, voxel_size, scene_up,
+    objects, scene_unit) and its walkable map for the body's radius and height (None without a
+    grid): what `sample` and `serve` start from."""
+    scene = resolve_scene(keys.scene, ckpt_config, keys.voxel_size, keys.scene_up, keys.objects, keys.scene_unit)
+    fmap = walkable_map(scene.grid, keys.body_radius, tuple(keys.body_height)) if scene.grid is not None else None
+    return scene, fmap
 
 
 def _scene_id(s: str, spec: str) -> int:

@@ -4,15 +4,13 @@ the body, the live sampler (warmed up), the session and the `App` the web server
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from motiongen.body.model import load_body_model
 from motiongen.export.gltf import body_glb_bytes
-from motiongen.loading.keys import load_checkpoint_model
-from motiongen.routing import walkable_map
+from motiongen.loading.keys import load_checkpoint_model, noise_generator
 from motiongen.sampling.goal_input import parse_goals, parse_point
 from motiongen.sampling.live import LiveSampler
-from motiongen.sampling.scene_setup import default_start, resolve_scene
+from motiongen.sampling.scene_setup import default_start, scene_for_keys
 from motiongen.sampling.settings import SamplerSettings
 from motiongen.serve.server import App
 from motiongen.serve.serve_config import ServeConfig
@@ -24,11 +22,10 @@ def build_app(cfg: ServeConfig, log=print) -> App:
     """The App for `cfg`, its session not yet started. ConfigError for a bad checkpoint, scene,
     start or goals."""
     loaded = load_checkpoint_model(cfg)
-    scene = resolve_scene(cfg.scene, loaded.config, cfg.voxel_size, cfg.scene_up, cfg.objects, cfg.scene_unit)
-    fmap = walkable_map(scene.grid, cfg.body_radius, tuple(cfg.body_height)) if scene.grid is not None else None
+    scene, fmap = scene_for_keys(cfg, loaded.config)
     start = parse_point(cfg.start, "start") if cfg.start is not None else default_start(fmap, None)
     body_model = load_body_model(cfg.body_model)
-    gen = torch.Generator(device=loaded.device if loaded.device.type != "mps" else "cpu").manual_seed(cfg.seed)
+    gen = noise_generator(loaded, cfg.seed)
     log(f"serve: {cfg.ckpt} (step {loaded.step}) in {scene.label}; warming up")
     live = LiveSampler(loaded, scene.grid, fmap, scene.objects, body_model=body_model, start_xz=start,
                        start_yaw=cfg.start_yaw or 0.0, sampler=SamplerSettings.of(cfg), loop=cfg.loop,
