@@ -124,8 +124,7 @@ class LiveSession:
         self.queue.append((kind, goals))
         if heads:
             self._tick()
-            end = (len(self.pub.frames["root"]) - 1) / self.fps
-            if end > self.played + self._margin_s():
+            if self._generated_s() > self.played + self._margin_s():
                 self.live.cancel.set()
         self.wake.set()
 
@@ -149,7 +148,7 @@ class LiveSession:
             joints = pub.frames["joints"][f, :NUM_BODY_JOINTS]
             names = self.live.loaded.action_names
             label = int(pub.frames["labels"][f])
-            return {"time_played": self.played, "time_generated": (len(pub.frames["root"]) - 1) / self.fps,
+            return {"time_played": self.played, "time_generated": self._generated_s(),
                     "frame_played": f, "frames_generated": len(pub.frames["root"]), "fps": self.fps,
                     "playing": self.playing, "rev": self.rev, "changed_from": self.changed_from,
                     "hips": joints[0].tolist(), "joints": joints.tolist(),
@@ -211,7 +210,7 @@ class LiveSession:
             commands, self.queue = self.queue, []
             self.applying = commands
             self.live.cancel.clear()
-            ahead = (len(self.pub.frames["root"]) - 1) / self.fps - self.played
+            ahead = self._generated_s() - self.played
         if commands:
             self._apply(commands)
         elif ahead > self.lead_s:
@@ -284,11 +283,15 @@ class LiveSession:
         dt, self._last = now - self._last, now
         if not self.playing:
             return
-        end = (len(self.pub.frames["root"]) - 1) / self.fps
+        end = self._generated_s()
         want = self.played + dt
         if want > end:
             self.stall_s += want - max(end, self.played)
         self.played = min(want, end)
+
+    def _generated_s(self) -> float:
+        """Seconds of motion published: the time of the last frame generated."""
+        return (len(self.pub.frames["root"]) - 1) / self.fps
 
     def _frame_played(self) -> int:
         return int(min(np.floor(self.played * self.fps + 1e-9), len(self.pub.frames["root"]) - 1))
