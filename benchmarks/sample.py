@@ -2,18 +2,24 @@
 
     python benchmarks/sample.py [ckpt=PATH] [threads=2] [preset=paper] [episodes=6] [project=true]
                                 [stride=3] [length=16] [samplers=ddpm-100,ddim-50,ddim-25,ddim-10] [batches=1,8]
-                                [precisions=fp32,bf16]
+                                [precisions=fp32,bf16] [solves=lbfgs]
 
 Speed: the `paper` preset with random-init weights (speed does not depend on training) on the
-CPU, DDPM-100 vs DDIM-50/25/10, batch 1 and 8: real-time factor = seconds of motion produced
-(all samples) per second of compute, over a straight 10 m walk in an empty scene. The time
-includes everything `sample.py` does to a motion: the per-episode projection onto one body and
-the final body solve (foot lock); `project=false` measures the network alone. `stride=2
-length=24` gives the model 15 fps windows of the same 1.6 s (the demo's and quality recipe's
-rate), which also sets the rate-dependent clean-up (seam blend, the solve's smoothness weight).
-Each setting runs once per precision (`precision=` of sample.py: bf16 holds the denoiser's
-transformer layers in bfloat16), one after the other in this run, so their ratio is measured
-on the host of the moment.
+CPU, one row per sampler x batch x precision x final-solve method (`loop.solve`), each run in a
+fresh child process (so each row's peak resident memory is its own), one after the other in
+this run, so their ratios are measured on the host of the moment. A row is a straight 10 m
+walk in an empty scene: real-time factor (seconds of motion produced, all samples, per second
+of compute), frames per second of output (30 fps frames, all samples), the ratio of its
+real-time factor to the first row's, the share of the time spent putting the motion on the
+body (the per-episode projection and the final solve) and the child's peak resident memory.
+`project=false` measures the network alone. A distilled student with n steps costs exactly
+what `ddim-n` costs here (the same network, guidance folded in, n evaluations per window), so
+the issue-27 figure is
+
+    python benchmarks/sample.py samplers=ddim-25,ddim-2,ddim-1 batches=1,64 precisions=bf16 solves=lbfgs,joint-space
+
+`stride=2 length=24` gives the model 15 fps windows of the same 1.6 s (the demo's and quality
+recipe's rate), which also sets the rate-dependent clean-up (seam blend, the solve's weights).
 Quality: with `ckpt=` (a trained checkpoint, e.g. the demo), the goal-reaching error at the
 same step counts on a fixed goal route: pelvis and hips-midpoint error on arrival (both the
 body's own: goals are predicted, not pinned), plus how many goals were reached.
@@ -21,7 +27,8 @@ body's own: goals are predicted, not pinned), plus how many goals were reached.
 
 from __future__ import annotations
 
-import copy
+import multiprocessing
+import resource
 import sys
 import time
 import types
@@ -36,7 +43,8 @@ from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, MaskConfig
 from motiongen.diffusion.masks import predicts_goal
 from motiongen.loading.build import PRECISIONS, load_model, resolve_precision
 from motiongen.models import build_model, model_config
-from motiongen.sampling import Goal, LoopConfig, SamplerSettings, generate, plan_scene_route
+from motiongen.sampling import Goal, LoopConfig, SamplerSettings, autoregressive, cleanup, generate, plan_scene_route
+from motiongen.sampling.assemble import SOLVE_METHODS
 from motiongen.skeleton import BODY
 
 
@@ -46,7 +54,7 @@ SETTINGS = [("ddpm", 100), ("ddim", 50), ("ddim", 25), ("ddim", 10)]
 def _args(argv):
     out = {"ckpt": None, "threads": "2", "preset": "paper", "episodes": "6", "project": "true",
            "stride": "3", "length": "16", "samplers": ",".join(f"{s}-{n}" for s, n in SETTINGS), "batches": "1,8",
-           "precisions": "fp32,bf16"}
+           "precisions": "fp32,bf16", "solves": "lbfgs"}
     for a in argv:
         k, _, v = a.partition("=")
         out[k] = v
@@ -83,44 +91,82 @@ def _samplers(spec: str) -> list[tuple[str, int]]:
     return out
 
 
-def main(argv):
-    a = _args(argv)
+def _speed_row(a: dict, sampler: str, steps: int, batch: int, prec: str, solve: str, out) -> None:
+    """One speed row in this (child) process: a short untimed run first (loading the body model
+    and the first calls' set-up are not sampling speed), then the timed one. Puts (motion s,
+    wall s, body s, peak RSS MiB) on `out`."""
     torch.set_num_threads(int(a["threads"]))
+    torch.manual_seed(0)
     loaded = _random_loaded(a["preset"], int(a["stride"]), int(a["length"]))
-    episodes, project = int(a["episodes"]), a["project"] == "true"
-    print(f"speed: preset={a['preset']}, {loaded.fps / int(a['stride']):g} fps windows of {a['length']} frames, "
-          f"{torch.get_num_threads()} threads, {episodes} episodes per run, "
-          f"body projection + solve {'on' if project else 'off'}")
-    # one untimed short run first: loading the body model and the first calls' set-up are not
-    # sampling speed (the first run reads far slower than the same run after others)
+    loaded.model = loaded.model.blocks_to(PRECISIONS[prec])
+    project = a["project"] == "true"
     walk, _ = plan_scene_route((0, 0), [Goal([0, 100.0])], loaded.action_names, path="straight")
+    body_s = _time_body()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         generate(loaded, route=walk, sampler=SamplerSettings("ddim", 2),
-                 loop=LoopConfig(warmup=1, max_episodes=1, project=project))
-    models = {}
-    for prec in filter(None, a["precisions"].split(",")):
+                 loop=LoopConfig(warmup=1, max_episodes=1, project=project, solve=solve))
+        body_s[0] = 0.0
+        loop = LoopConfig(warmup=1, max_episodes=int(a["episodes"]) - 1, project=project, solve=solve)
+        t = time.perf_counter()
+        m = generate(loaded, route=walk, num_samples=batch, sampler=SamplerSettings(sampler, steps),
+                     generator=torch.Generator().manual_seed(0), loop=loop)
+        wall = time.perf_counter() - t
+    out.put((batch * m.duration, batch * m.joints.shape[1], wall, body_s[0],
+             resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
+
+
+def _time_body() -> list:
+    """Seconds spent in the per-episode projection and the final solve, summed into the
+    returned one-element list (the two functions wrapped where the sampler looks them up)."""
+    total = [0.0]
+    for module, name in ((autoregressive, "project_window"), (cleanup, "solve_bodies")):
+        fn = getattr(module, name)
+
+        def timed(*args, _fn=fn, **kw):
+            t = time.perf_counter()
+            try:
+                return _fn(*args, **kw)
+            finally:
+                total[0] += time.perf_counter() - t
+
+        setattr(module, name, timed)
+    return total
+
+
+def main(argv):
+    a = _args(argv)
+    precisions = [p for p in a["precisions"].split(",") if p]
+    for prec in precisions:
         if prec not in PRECISIONS:
             sys.exit(f"precisions: expected some of {', '.join(PRECISIONS)}, got {prec!r}")
-        models[prec] = copy.deepcopy(loaded.model).blocks_to(PRECISIONS[prec])
-    # what precision=auto (sample.py's default) picks for this preset
-    auto = resolve_precision(loaded.model, "auto")
-    print(f"precision=auto (the default) uses {auto} for this model")
-    print(f"{'sampler':>10} {'batch':>5} {'precision':>9} {'motion s':>9} {'wall s':>7} {'RTF':>6}")
+    solves = [s for s in a["solves"].split(",") if s]
+    for solve in solves:
+        if solve not in SOLVE_METHODS:
+            sys.exit(f"solves: expected some of {', '.join(SOLVE_METHODS)}, got {solve!r}")
+    print(f"speed: preset={a['preset']}, {30.0 / int(a['stride']):g} fps windows of {a['length']} frames, "
+          f"{a['threads']} threads, {a['episodes']} episodes per run, "
+          f"body projection + solve {'on' if a['project'] == 'true' else 'off'}, one child process per row")
+    print(f"precision=auto (the default) uses {resolve_precision(_random_loaded(a['preset'], 3, 16).model, 'auto')} "
+          "for this model")
+    print(f"{'sampler':>10} {'batch':>5} {'precision':>9} {'solve':>11} {'motion s':>9} {'wall s':>7} {'RTF':>6} "
+          f"{'frames/s':>8} {'x first':>7} {'body %':>6} {'peak MiB':>8}")
+    ctx = multiprocessing.get_context("spawn")
+    first = {}
     for sampler, steps in _samplers(a["samplers"]):
         for batch in map(int, filter(None, a["batches"].split(","))):
-            for prec, model in models.items():
-                loaded.model = model
-                loop = LoopConfig(warmup=1, max_episodes=episodes - 1, project=project)
-                t = time.perf_counter()
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    m = generate(loaded, route=walk, num_samples=batch,
-                                 sampler=SamplerSettings(sampler, steps), generator=torch.Generator().manual_seed(0),
-                                 loop=loop)
-                wall = time.perf_counter() - t
-                print(f"{sampler + '-' + str(steps):>10} {batch:>5} {prec:>9} {batch * m.duration:9.1f} {wall:7.2f} "
-                      f"{batch * m.duration / wall:6.2f}", flush=True)
+            for prec in precisions:
+                for solve in solves:
+                    q = ctx.Queue()
+                    p = ctx.Process(target=_speed_row, args=(a, sampler, steps, batch, prec, solve, q))
+                    p.start()
+                    motion_s, frames, wall, body, rss = q.get()
+                    p.join()
+                    rtf = motion_s / wall
+                    ref = first.setdefault(batch, rtf)
+                    print(f"{sampler + '-' + str(steps):>10} {batch:>5} {prec:>9} {solve:>11} {motion_s:9.1f} "
+                          f"{wall:7.2f} {rtf:6.2f} {frames / wall:8.0f} {rtf / ref:7.2f} {100 * body / wall:6.1f} "
+                          f"{rss:8.0f}", flush=True)
     if not a["ckpt"]:
         print("quality: pass ckpt=PATH (a trained checkpoint) for goal-reaching errors")
         return

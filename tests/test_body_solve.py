@@ -1,6 +1,7 @@
 """One body per motion: projection keeps bone lengths whatever the input, foot locking plants feet."""
 
 import numpy as np
+import pytest
 import torch
 
 from motiongen.body.random_motion import sample_motion
@@ -50,7 +51,18 @@ def test_index_fingers_ride_on_the_wrists(bm):
         assert np.ptp(d) < 1e-5 and 0.05 < d[0] < 0.15                  # a rigid hand, 5-15 cm long
 
 
-def test_foot_locking_plants_a_sliding_foot(bm):
+def _solve(body, method, X, R, planted, cfg=None):
+    """The final solve of sample 0 by either method (`assemble.SOLVE_METHODS`)."""
+    if method == "lbfgs":
+        return body.solve(0, X, R, planted, FOOT_JOINTS, cfg=cfg)
+    return body.solve_joint_space(0, X, R, planted, FOOT_JOINTS, cfg=cfg)
+
+
+METHODS = pytest.mark.parametrize("method", ["joint-space", "lbfgs"])
+
+
+@METHODS
+def test_foot_locking_plants_a_sliding_foot(bm, method):
     """A standing body whose predicted left foot slides 8 cm along the floor and jitters by 1 cm
     while flagged planted: after the solve it stays within 1 cm of one spot over the span, and
     the rest of the body still follows the prediction."""
@@ -68,8 +80,8 @@ def test_foot_locking_plants_a_sliding_foot(bm):
     planted[5:35, :2] = True                                                # the left foot's span
     body = MotionBody(bm, BODY, betas[None])
     _, R, _ = body.project(target[None])
-    free = body.solve(0, target, R[0], None, FOOT_JOINTS)                   # no locking: follows the slide
-    locked = body.solve(0, target, R[0], planted, FOOT_JOINTS)
+    free = _solve(body, method, target, R[0], None)                         # no locking: follows the slide
+    locked = _solve(body, method, target, R[0], planted)
     for j in FOOT_JOINTS[:2]:
         span_free = free.joints[5:35, j]
         span = locked.joints[5:35, j]
@@ -85,7 +97,8 @@ def test_foot_locking_plants_a_sliding_foot(bm):
     np.testing.assert_allclose(again.numpy(), locked.joints, atol=1e-4)
 
 
-def test_grounded_slide_drops_with_locking_on_a_walk(bm):
+@METHODS
+def test_grounded_slide_drops_with_locking_on_a_walk(bm, method):
     """Gait from the procedural parameters slides its feet (the root moves at constant speed);
     flag each foot planted where it is low and slow, and locking stops it."""
     X, betas = _posed(bm, 90, seed=6, gait=True)
@@ -95,14 +108,15 @@ def test_grounded_slide_drops_with_locking_on_a_walk(bm):
     planted = low & (toe_v < np.percentile(toe_v, 50))
     body = MotionBody(bm, BODY, betas[None])
     _, R, _ = body.project(X[None])
-    locked = body.solve(0, X, R[0], planted, FOOT_JOINTS)
+    locked = _solve(body, method, X, R[0], planted)
     before = np.median(toe_v[planted])
     after_v = np.linalg.norm(np.gradient(locked.joints[:, FOOT_JOINTS][..., [0, 2]], axis=0), axis=-1) * 30
     assert np.median(after_v[planted]) < 0.25 * before
     assert np.isfinite(grounded_slide(locked.joints, 30.0, foot_joints=FOOT_JOINTS, floor_y=X[..., 1].min()))
 
 
-def test_swing_clearance_keeps_swinging_feet_at_the_predicted_height(bm):
+@METHODS
+def test_swing_clearance_keeps_swinging_feet_at_the_predicted_height(bm, method):
     """A strong joint-acceleration weight (the final solve's at 15 fps) flattens each swing and
     pulls the swinging foot below its predicted height (4 cm on this gait), which the skating
     metric reads as a low, fast foot; the clearance term keeps every unplanted foot joint at or
@@ -121,7 +135,7 @@ def test_swing_clearance_keeps_swinging_feet_at_the_predicted_height(bm):
 
     def shortfall(w_clearance):
         cfg = replace(SOLVE_CONFIG, w_smooth_joints=200.0, w_clearance=w_clearance)
-        out = body.solve(0, X, R[0], planted, FOOT_JOINTS, cfg=cfg)
+        out = _solve(body, method, X, R[0], planted, cfg)
         return ((X[:, FOOT_JOINTS, 1] - out.joints[:, FOOT_JOINTS, 1]) * ~planted).max()
 
     assert shortfall(0.0) > 0.02

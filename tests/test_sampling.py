@@ -124,11 +124,12 @@ class Garbage(nn.Module):
         return self.diffusion.eps_from_x0(x_t, x0, t)
 
 
-def test_one_body_across_seams_whatever_the_network_predicts():
+@pytest.mark.parametrize("solve", ["lbfgs", "joint-space"])
+def test_one_body_across_seams_whatever_the_network_predicts(solve):
     with pytest.warns(UserWarning, match="max_episodes"):
         m = _generate(_loaded(Garbage), [Goal([0.0, 3.0])], num_samples=2,
                       generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 3),
-                      loop=LoopConfig(max_episodes=4))
+                      loop=LoopConfig(max_episodes=4, solve=solve))
     for s in range(2):
         raw = bone_consistency(m.joints_raw[s], BODY_PARENTS)
         assert raw.cv_median > 0.2                                        # the network's bones are garbage ...
@@ -253,7 +254,8 @@ def test_stall_rule():
     assert (best[0], moved[0]) == (1.89, 30)
 
 
-def test_the_clean_up_in_the_loop_seats_the_body_among_placed_objects():
+@pytest.mark.parametrize("solve", ["lbfgs", "joint-space"])
+def test_the_clean_up_in_the_loop_seats_the_body_among_placed_objects(solve):
     """The whole loop with the clean-up on, in a scene with a seat, and a cup placed on a table:
     while sitting the pelvis is `seat_offset` above the seat top; no wrist ever enters the cup.
     (The oracle's arms are held out in a T: its wrists stay beyond the hand reach's range, so
@@ -272,7 +274,7 @@ def test_the_clean_up_in_the_loop_seats_the_body_among_placed_objects():
     route, fmap = plan_scene_route((0.0, 0.0), [Goal([1.04, -0.96], "sit", 1.0)], loaded.action_names, scene)
     m = generate(loaded, scene, route=route, walkable=fmap, objects=[(cup, cup_pose)],
                  generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 2),
-                 loop=LoopConfig(stall_s=None))
+                 loop=LoopConfig(stall_s=None, solve=solve))
     assert m.completed, m.goal_outcome
     sit = np.flatnonzero(m.actions[0] == 1)
     mid = sit[len(sit) // 3: 2 * len(sit) // 3]                                          # past the ramps

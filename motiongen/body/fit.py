@@ -71,6 +71,10 @@ class RefineConfig:
     # while within foot_z_thres m of floor_y ("height", in the target) or flagged by the
     # contact labels ("contact").
     w_foot_vel: float = 0.0
+    # The joint acceleration weight of the contact joints (the feet) in the joint-space solve
+    # (`joint_solve`; None: w_smooth_joints): what keeps a foot from skating there is smoothing
+    # it, which the rest of the body, whose steps are 2-5 Hz, does not want.
+    w_smooth_contact: float | None = None
     foot_vel_a: float = 0.10
     foot_z_thres: float = 0.10
     foot_vel_mask: str = "height"

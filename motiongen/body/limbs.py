@@ -23,13 +23,22 @@ LIMBS = tuple((_I(f"{s}_{a}"), _I(f"{s}_{b}"), _I(f"{s}_{c}"), _I(f"{s}_{d}") if
               for s in ("left", "right"))
 
 
-def two_bone(root: Tensor, target: Tensor, pole: Tensor, upper: Tensor, lower: Tensor) -> tuple[Tensor, Tensor]:
+def two_bone(root: Tensor, target: Tensor, pole: Tensor, upper: Tensor, lower: Tensor,
+             soft: float = 0.0) -> tuple[Tensor, Tensor]:
     """Middle and end joints (..., 3) of a two-bone chain from `root` towards `target`, bending
     towards `pole` (the predicted middle joint), bone lengths upper, lower (...,). Unreachable
-    targets are approached along the line to them (stretched out, or folded in)."""
+    targets are approached along the line to them (stretched out, or folded in).
+
+    soft > 0 (m): soft IK. Within `soft` of full reach the end falls short of the target by an
+    exponentially growing margin, so the chain never snaps straight: at full reach the middle
+    joint's distance from the line grows like the square root of the slack, and a target that
+    comes back within reach bends it from straight in a frame."""
     d_vec = target - root
     d_len = d_vec.norm(dim=-1).clamp(min=1e-9)
     u = d_vec / d_len[..., None]
+    if soft > 0:
+        start = upper + lower - soft
+        d_len = torch.where(d_len > start, start + soft * (1 - torch.exp(-(d_len - start) / soft)), d_len)
     d = d_len.clamp(min=(upper - lower).abs() + 1e-4, max=upper + lower - 1e-4)
     x = (upper ** 2 - lower ** 2 + d ** 2) / (2 * d)                                      # along u to the bend
     h = (upper ** 2 - x ** 2).clamp(min=0).sqrt()                                          # off the line
@@ -45,20 +54,57 @@ def two_bone(root: Tensor, target: Tensor, pole: Tensor, upper: Tensor, lower: T
     return middle, root + d[..., None] * u
 
 
-def place_limbs(P: Tensor, X: Tensor, rest: Tensor) -> Tensor:
+def place_limbs(P: Tensor, X: Tensor, rest: Tensor, bend: Tensor | None = None, soft: float = 0.0) -> Tensor:
     """P (..., 22, 3) a rigid pose whose trunk is right, X (..., 22, 3) the prediction, rest
     (..., 22, 3) the body's rest joints -> P with every limb re-placed by two-bone IK so the
     ankles/wrists sit at the predicted positions; the toe keeps its predicted direction from
-    the ankle, at the body's foot length. Bone lengths stay the body's."""
+    the ankle, at the body's foot length. Bone lengths stay the body's.
+
+    bend (..., 22, 3) or None: joints whose limbs give the bending direction (the knee's or
+    elbow's offset from its own hip-ankle or shoulder-wrist line). None: the knee or elbow of X
+    itself is the pole. Pass the rigid pose X came from when X's ends were moved without its
+    middles (a locked foot): X's own knee may then lie almost on the new hip-ankle line, and
+    its side of that line flips from frame to frame. soft: `two_bone`'s soft reach (m) for the
+    legs (a foot a little short of a locked spot, not a knee snapping straight); the arms reach
+    exactly (a hand goes on an object)."""
     P = P.clone()
     for r, m, e, leaf in LIMBS:
         upper = (rest[..., m, :] - rest[..., r, :]).norm(dim=-1).expand(P.shape[:-2])
         lower = (rest[..., e, :] - rest[..., m, :]).norm(dim=-1).expand(P.shape[:-2])
-        P[..., m, :], P[..., e, :] = two_bone(P[..., r, :], X[..., e, :], X[..., m, :], upper, lower)
+        pole = X[..., m, :] if bend is None else P[..., r, :] + _bend_direction(bend, r, m, e)
+        leg = leaf >= 0
+        P[..., m, :], P[..., e, :] = two_bone(P[..., r, :], X[..., e, :], pole, upper, lower, soft if leg else 0.0)
         if leaf >= 0:
             P[..., leaf, :] = _toe(P[..., e, :], X[..., leaf, :] - X[..., e, :],
                                    (rest[..., leaf, :] - rest[..., e, :]).norm(dim=-1))
     return P
+
+
+# A limb's own bend counts from here; a straighter one bends the way such limbs do (knees
+# forward, elbows back): a straight prediction gives no plane, and the side of its line a nearly
+# straight (or slightly over-straightened) one falls on flips from frame to frame.
+BEND_PRIOR = 0.02        # m
+
+
+def _bend_direction(bend: Tensor, r: int, m: int, e: int) -> Tensor:
+    """The middle joint's offset (..., 3) from the root-end line of its own chain in `bend`
+    (..., 22, 3), less any part of it the wrong way, plus BEND_PRIOR the way the limb bends
+    (the body's forward for a knee, its back for an elbow; forward from the hips or shoulders
+    and the world's up, +y)."""
+    root, middle, end = bend[..., r, :], bend[..., m, :], bend[..., e, :]
+    line = end - root
+    u = line / line.norm(dim=-1, keepdim=True).clamp(min=1e-9)
+    p = middle - root
+    own = p - (p * u).sum(-1, keepdim=True) * u
+    leg = r in (_I("left_hip"), _I("right_hip"))
+    a, b = ((_I("left_hip"), _I("right_hip")) if leg else (_I("left_shoulder"), _I("right_shoulder")))
+    side = bend[..., a, :] - bend[..., b, :]                                   # the body's left
+    up = torch.zeros_like(side)
+    up[..., 1] = 1.0
+    forward = torch.cross(side, up, dim=-1)
+    way = forward / forward.norm(dim=-1, keepdim=True).clamp(min=1e-9) * (1.0 if leg else -1.0)
+    against = (own * way).sum(-1, keepdim=True).clamp(max=0)                   # bent the wrong way
+    return own - against * way + BEND_PRIOR * way
 
 
 def _toe(ankle: Tensor, d: Tensor, length: Tensor) -> Tensor:

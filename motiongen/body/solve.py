@@ -12,7 +12,9 @@ motion and turns predicted joints into that body:
 * `solve` is the final pass over the whole motion at the output rate: the same refinement as
   `motiongen.body.fit` (joint L2, smoothness, rotation prior) with foot locking — every span a
   foot joint is predicted planted, it is held in one place (`fit.lock_loss`), and between
-  those spans a foot is not pulled below its predicted height (swing clearance).
+  those spans a foot is not pulled below its predicted height (swing clearance);
+  `solve_joint_space` is the same pass in closed form (`loop.solve=joint-space`,
+  `joint_solve.py`): about 20 times faster, with the trade-off docs/sampling.md describes.
 
 Joint sets: the 22 SMPL-X body joints, plus the index1 finger joints where the model has them
 (posed rigidly from the wrist).
@@ -24,11 +26,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
+from scipy.ndimage import gaussian_filter1d
 from scipy.optimize import least_squares
 
 from motiongen.body.analytic import analytic_init
 from motiongen.body.fit import FitResult, RefineConfig, refine
-from motiongen.body.limbs import place_limbs
+from motiongen.body.joint_solve import held_limbs, into_reach, solve_joints
+from motiongen.body.limbs import LIMBS, place_limbs
 from motiongen.body.model import BodyModel, BodyParams, forward_kinematics
 from motiongen.body.rotations import matrix_to_axis_angle
 from motiongen.metrics import bone_lengths
@@ -48,6 +52,9 @@ SHAPE_PRIOR = 1e-3
 # predicted height: strong smoothing flattens a swing into a low, fast foot — foot skating.
 # 300 removed most of that skating at equal PSKL; 30 did half as much and 3000 cost PSKL
 # (the 4-scene check in docs/results.md).
+SOFT_REACH = 0.03       # m: the limbs' soft IK in the joint-space solve (limbs.two_bone)
+TRUNK_SHIFT_SMOOTHING = 3.0   # frames: sigma of that trunk shift over time
+BEND_SMOOTHING = 2.0    # frames: sigma over which the limbs' bending planes are smoothed
 SOLVE_CONFIG = RefineConfig(max_steps=80, w_contact=100.0, w_reach=30.0, w_smooth_joints=5.0, w_floor=1000.0, floor_y=0.003,
                             w_clearance=300.0, optimize_betas=False, w_prior=1e-3, threads=1)
 
@@ -135,12 +142,41 @@ class MotionBody:
         X = torch.as_tensor(np.asarray(joints[..., :J22, :]), dtype=self.rest.dtype).reshape(S * T, J22, 3)
         rest = self.rest[:, None].expand(S, T, J22, 3).reshape(S * T, J22, 3)
         hint = None if rot_hint is None else rot_hint[:, None].expand(S, T, J22, 3, 3).reshape(-1, J22, 3, 3)
-        R = analytic_init(X, rest, hint)                                                       # (S*T, 22, 3, 3)
-        P, _ = forward_kinematics(R, rest, self.bm.parents, self.bm._levels, with_rotations=False)
-        P = place_limbs(P + (X[:, :1] - rest[:, :1]), X, rest)                                 # (S*T, 22, 3)
-        R = analytic_init(P, rest, R).reshape(S, T, J22, 3, 3)                                 # exact: lengths agree
+        R = self._rotations(X, rest, hint).reshape(S, T, J22, 3, 3)
         transl = X.reshape(S, T, J22, 3)[:, :, 0] - self.rest[:, None, 0]                       # (S, T, 3)
         return self.pose(R, transl).double().numpy(), R, transl
+
+    def _rotations(self, X: torch.Tensor, rest: torch.Tensor, hint: torch.Tensor | None,
+                   bend: torch.Tensor | None = None, soft: float = 0.0) -> torch.Tensor:
+        """Local rotations (N, 22, 3, 3) putting rest joints (N, 22, 3) on joints X (N, 22, 3)
+        (`project`): bone directions, then the limbs' ends by two-bone IK (bending as `bend`
+        (N, 22, 3) bends, or X); twist from hint."""
+        R = analytic_init(X, rest, hint)                                                       # (N, 22, 3, 3)
+        P, _ = forward_kinematics(R, rest, self.bm.parents, self.bm._levels, with_rotations=False)
+        P = place_limbs(P + (X[:, :1] - rest[:, :1]), X, rest, bend, soft)                     # (N, 22, 3)
+        return analytic_init(P, rest, R)                                                       # exact: lengths agree
+
+    def solve_joint_space(self, sample: int, joints: np.ndarray, rot_hint: torch.Tensor,
+                          planted: np.ndarray | None = None, contact_joints=(), cfg: RefineConfig | None = None,
+                          reach=None) -> BodyMotion:
+        """The final pass for one sample as `solve`, in closed form: the objective's joint
+        terms minimised exactly in joint space (`joint_solve.solve_joints`), then put on the
+        body (`project`'s analytic fit, frame by frame; twist from rot_hint (T, 22, 3, 3)).
+        About 20 times faster than `solve`; the figures of both: docs/results.md."""
+        cfg = cfg if cfg is not None else SOLVE_CONFIG
+        X = np.asarray(joints[:, :NUM_BODY_JOINTS], np.float64)
+        Y = solve_joints(X, cfg, planted, contact_joints, reach)                                # (T, 22, 3)
+        T = Y.shape[0]
+        rest = self.rest[sample].double().numpy()
+        lengths = np.array([np.linalg.norm(rest[m] - rest[r]) + np.linalg.norm(rest[e] - rest[m])
+                            for r, m, e, _ in LIMBS])
+        Y = into_reach(Y, lengths, held_limbs(T, reach), TRUNK_SHIFT_SMOOTHING)
+        Yt = torch.as_tensor(Y, dtype=self.rest.dtype)
+        bend = torch.as_tensor(gaussian_filter1d(X, BEND_SMOOTHING, axis=0, mode="nearest"), dtype=Yt.dtype)
+        R = self._rotations(Yt, self.rest[sample].expand(T, NUM_BODY_JOINTS, 3), rot_hint.to(Yt.dtype), bend,
+                            SOFT_REACH)
+        transl = Yt[:, 0] - self.rest[sample, 0]
+        return self._motion(sample, R, transl)
 
     def solve(self, sample: int, joints: np.ndarray, rot_init: torch.Tensor, planted: np.ndarray | None = None,
               contact_joints=(), cfg: RefineConfig | None = None, reach=None) -> BodyMotion:
@@ -161,10 +197,14 @@ class MotionBody:
                      torch.as_tensor(p, dtype=X.dtype), torch.as_tensor(w, dtype=X.dtype))
         R, transl, _, _, _ = refine(self.bm, X, rot_init.to(X.dtype), betas, cfg, contact, fixed_betas=True,
                                     contact_joints=tuple(contact_joints), reach=reach)
+        return self._motion(sample, R, transl)
+
+    def _motion(self, sample: int, R: torch.Tensor, transl: torch.Tensor) -> BodyMotion:
+        """The BodyMotion of sample's body posed by local rotations (T, 22, 3, 3), translations (T, 3)."""
         with torch.no_grad():
             J = self.pose(R[None], transl[None], slice(sample, sample + 1))[0]                   # (T, J, 3)
             aa = matrix_to_axis_angle(R)                                                       # (T, 22, 3)
-        T = X.shape[0]
+        T = R.shape[0]
         return BodyMotion(global_orient=aa[:, 0].numpy(), body_pose=aa[:, 1:].reshape(T, 63).numpy(),
-                          transl=transl.numpy(), betas=betas.numpy(), joints=J.numpy().astype(np.float32),
+                          transl=transl.numpy(), betas=self.betas[sample].numpy(), joints=J.numpy().astype(np.float32),
                           rotmats=R.numpy())

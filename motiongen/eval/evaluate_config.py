@@ -16,6 +16,7 @@ from motiongen.errors import ConfigError
 from motiongen.eval.pairs import SETTINGS, ProtocolConfig
 from motiongen.importers.sources import DataConfig
 from motiongen.loading.keys import CheckpointKeys
+from motiongen.sampling.assemble import SOLVE_METHODS
 from motiongen.sampling.sample_config import MAX_SAMPLES, check_sampler_settings
 from motiongen.sampling.settings import CLEANUP_STAGES, SamplerSettings
 
@@ -40,6 +41,7 @@ class LoopOverrides:
     smooth: float | None = None     # Gaussian sigma (output frames) before the final solve; 0 = off
     seam_blend: float | None = None  # seconds; 0 = off
     solve_smoothness: float | None = None  # final solve's joint-acceleration weight; None = by the model's frame rate
+    solve: str | None = None        # final solve: lbfgs | joint-space (docs/sampling.md)
     swing_clearance: bool | None = None  # false: the final solve may pull a swinging foot below its predicted height
     seat_shift: bool | None = None  # false: seated bodies are not moved onto their seats
 
@@ -126,6 +128,8 @@ def loop_overrides(loop) -> dict:
     if not isinstance(loop, LoopOverrides):
         loop = typed_config(LoopOverrides, loop if loop is not None else {}, prefix="loop.")
     out = {k: v for k, v in asdict(loop).items() if v is not None}
+    if "solve" in out:
+        require_choice("loop.solve", out["solve"], SOLVE_METHODS)
     for key, value in out.items():
         if isinstance(value, float) and value < 0:
             raise ConfigError(f"loop.{key}: expected a number >= 0, got {value:g}")

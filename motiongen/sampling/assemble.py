@@ -10,6 +10,8 @@ import torch
 from scipy.interpolate import CubicSpline
 
 from motiongen.body.analytic import analytic_init
+from motiongen.body.rotations import matrix_to_quaternion, quaternion_to_matrix
+from motiongen.errors import ConfigError
 from motiongen.skeleton import NUM_BODY_JOINTS
 from motiongen.spans import true_runs
 
@@ -51,6 +53,23 @@ def solve_smoothness_for_rate(model_fps: float) -> float:
     the high frequencies first, which is what this weight is for, at a cost that does not grow
     with it. The figures behind both values: docs/results.md."""
     return 200.0 if model_fps >= SMOOTHABLE_FPS - 1e-6 else 50.0
+
+
+# The joint-space solve (`loop.solve=joint-space`) reaches the minimum the L-BFGS solve stops
+# short of, so the same weight filters far more: 200 leaves nothing of the body's 2-5 Hz steps.
+# Its weights, chosen on the validation scenes (docs/results.md): the body's acceleration 10
+# (half power at about 3 Hz), the feet's 400 (what keeps them from skating).
+JOINT_SPACE_SMOOTHING = 10.0
+JOINT_SPACE_FEET_SMOOTHING = 400.0
+
+
+def solve_weights(method: str, model_fps: float, smoothness: float | None) -> dict:
+    """The final solve's acceleration weights for `method` (RefineConfig fields): smoothness
+    (`loop.solve_smoothness`) the body's, None: by method and model rate."""
+    if method == "joint-space":
+        w = JOINT_SPACE_SMOOTHING if smoothness is None else float(smoothness)
+        return {"w_smooth_joints": w, "w_smooth_contact": max(w, JOINT_SPACE_FEET_SMOOTHING)}
+    return {"w_smooth_joints": solve_smoothness_for_rate(model_fps) if smoothness is None else float(smoothness)}
 
 
 def output_times(num_model_frames: int, model_fps: float, out_fps: float) -> tuple[np.ndarray, np.ndarray]:
@@ -108,17 +127,45 @@ def planted_at_output(stance: np.ndarray, joints: np.ndarray, contact_joints, mo
 
 def solve_bodies(body, joints: np.ndarray, rot_model: torch.Tensor, planted: np.ndarray | None,
                  contact_joints, model_fps: float, out_fps: float, reach: list | None = None, cfg=None,
-                 samples=None) -> list:
+                 samples=None, method: str = "lbfgs") -> list:
     """The final solve, per sample: joints (S, T, J, 3) to follow at the output rate (resampled
     projected frames), rot_model (S, Tm, 22, 3, 3) the episodes' rotations (twist hints),
     planted (S, T, C) or None, reach: per sample a `reach_targets` tuple or None, cfg: the
-    solve's RefineConfig (None: body.solve.SOLVE_CONFIG), samples: which to solve (None: all).
-    Returns one `BodyMotion` per sample solved."""
-    _, near = output_times(rot_model.shape[1], model_fps, out_fps)
+    solve's RefineConfig (None: body.solve.SOLVE_CONFIG), samples: which to solve (None: all),
+    method: "lbfgs" (`MotionBody.solve`: 80 L-BFGS iterations over the rotations) or
+    "joint-space" (`MotionBody.solve_joint_space`: the objective's minimum in joint space in
+    closed form, then the analytic fit). Returns one `BodyMotion` per sample solved."""
+    if method not in SOLVE_METHODS:
+        raise ConfigError(f"loop.solve: expected one of {', '.join(SOLVE_METHODS)}, got {method!r}")
+    t_out, near = output_times(rot_model.shape[1], model_fps, out_fps)
     out = []
     for s in range(joints.shape[0]) if samples is None else samples:
+        p = None if planted is None else planted[s]
+        r = None if reach is None else reach[s]
+        if method == "joint-space":
+            hint = interpolate_rotations(rot_model[s], model_fps, t_out)                   # (T, 22, 3, 3)
+            out.append(body.solve_joint_space(s, joints[s], hint, p, contact_joints, cfg=cfg, reach=r))
+            continue
         X = torch.as_tensor(joints[s, :, :NUM_BODY_JOINTS], dtype=body.rest.dtype)        # (T, 22, 3)
         R0 = analytic_init(X, body.rest[s], rot_model[s, near].to(X.dtype))              # (T, 22, 3, 3)
-        out.append(body.solve(s, joints[s], R0, None if planted is None else planted[s], contact_joints,
-                              cfg=cfg, reach=None if reach is None else reach[s]))
+        out.append(body.solve(s, joints[s], R0, p, contact_joints, cfg=cfg, reach=r))
     return out
+
+
+SOLVE_METHODS = ("lbfgs", "joint-space")
+
+
+def interpolate_rotations(R: torch.Tensor, fps: float, t: np.ndarray) -> torch.Tensor:
+    """Rotations (Tm, J, 3, 3) at `fps` -> (T, J, 3, 3) at times t (T,) seconds, by normalised
+    linear interpolation of quaternions (the nearest frame would step the twist at the model
+    rate: a wrist turning in jumps)."""
+    q = matrix_to_quaternion(R.double())                                                   # (Tm, J, 4)
+    # Neighbouring frames on the same side of the double cover, so the interpolation takes the short way.
+    sign = torch.where((q[1:] * q[:-1]).sum(-1) < 0, -1.0, 1.0).to(q.dtype)
+    q = q * torch.cat([torch.ones_like(sign[:1]), torch.cumprod(sign, 0)])[..., None]
+    x = np.clip(np.asarray(t) * fps, 0, R.shape[0] - 1)
+    i0 = np.minimum(np.floor(x).astype(np.int64), R.shape[0] - 1)
+    i1 = np.minimum(i0 + 1, R.shape[0] - 1)
+    w = torch.as_tensor(x - i0, dtype=q.dtype)[:, None, None]
+    qi = (1 - w) * q[i0] + w * q[i1]
+    return quaternion_to_matrix(qi / qi.norm(dim=-1, keepdim=True)).to(R.dtype)

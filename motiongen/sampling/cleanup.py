@@ -14,8 +14,7 @@ import torch
 from scipy.ndimage import gaussian_filter1d
 
 from motiongen.body.solve import SOLVE_CONFIG
-from motiongen.sampling.assemble import (output_times, planted_at_output, resample, solve_bodies,
-                                         solve_smoothness_for_rate)
+from motiongen.sampling.assemble import output_times, planted_at_output, resample, solve_bodies, solve_weights
 from motiongen.sampling.episode import EpisodeState
 from motiongen.sampling.hand_clearance import settle_hands
 from motiongen.sampling.interactions import hand_targets, merge_targets, seat_shift
@@ -54,15 +53,15 @@ def clean_up(state: EpisodeState, layout, model_fps: float, plan: GoalPlan, loop
     bodies = None
     if state.body is not None:
         hands = hand_targets(out, labels, plan.names, loop.hand_actions, objects, scene) or [None] * out.shape[0]
-        w = solve_smoothness_for_rate(model_fps) if loop.solve_smoothness is None else float(loop.solve_smoothness)
+        weights = solve_weights(loop.solve, model_fps, loop.solve_smoothness)
         clearance = SOLVE_CONFIG.w_clearance if loop.swing_clearance else 0.0
         reach = [merge_targets(h, p) for h, p in zip(hands, seats)]
         rots = torch.cat(state.rots, 1)
 
         def solve(samples, targets):
             return solve_bodies(state.body, out, rots, planted if loop.foot_lock else None, layout.contact_joints,
-                                model_fps, loop.out_fps, targets, samples=samples,
-                                cfg=dataclasses.replace(SOLVE_CONFIG, w_smooth_joints=w, w_clearance=clearance))
+                                model_fps, loop.out_fps, targets, samples=samples, method=loop.solve,
+                                cfg=dataclasses.replace(SOLVE_CONFIG, w_clearance=clearance, **weights))
 
         bodies = solve(None, reach)
         bodies = settle_hands(bodies, reach, objects, state.body.bm,

@@ -11,6 +11,7 @@ from motiongen.checks import require_choice, require_fps, require_range
 from motiongen.errors import ConfigError
 from motiongen.export.camera import CAMERA_MODES
 from motiongen.loading.keys import CheckpointKeys
+from motiongen.sampling.assemble import SOLVE_METHODS
 from motiongen.sampling.goal_input import parse_point
 from motiongen.sampling.settings import LoopConfig, SamplerSettings
 
@@ -118,4 +119,5 @@ def check_loop(loop: LoopConfig) -> None:
     r("loop.smooth", loop.smooth, 0, 1000)
     r("loop.seam_blend", loop.seam_blend, 0, 60, allow_none=True)
     r("loop.solve_smoothness", loop.solve_smoothness, 0, allow_none=True)
+    require_choice("loop.solve", loop.solve, SOLVE_METHODS)
     r("loop.seat_offset", loop.seat_offset, -2, 2)

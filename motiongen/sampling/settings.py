@@ -86,6 +86,11 @@ class LoopConfig:
     # solve's swing clearance the 10 fps models gain from it as the 15 fps demo does (docs/quality.md).
     seam_blend: float | None = 0.6
     solve_smoothness: float | None = None  # final solve's joint-acceleration weight; None = by model rate (assemble.solve_smoothness_for_rate)
+    # How the final solve is solved: lbfgs (80 L-BFGS iterations over the rotations) or
+    # joint-space (the objective's minimum in joint space in closed form, then put on the body
+    # analytically; body/joint_solve.py): ~20x faster, the feet planted better, but further
+    # from the data's motion spectrum (PSKL) on the validation scenes (docs/results.md).
+    solve: str = "lbfgs"
     # Actions done with a hand on the nearest placed object: the final solve puts the nearer
     # hand on it over the frames so labelled. () leaves hands where the network put them.
     hand_actions: tuple[str, ...] = ("pick up",)
@@ -125,7 +130,7 @@ CLEANUP_STAGES: dict[str, dict] = {
 IN_LOOP_STAGES = ("projection", "seam_blend", "hand_goal")
 # The LoopConfig fields only the clean-up after the last episode reads.
 POST_LOOP_FIELDS = frozenset({"foot_lock", "swing_clearance", "smooth", "hand_actions", "seat_shift",
-                              "solve_smoothness"})
+                              "solve_smoothness", "solve"})
 
 
 @dataclass

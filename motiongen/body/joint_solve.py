@@ -1,0 +1,212 @@
+"""The final solve's objective, solved exactly in joint space.
+
+`fit.refine` minimises its objective over rotations with L-BFGS; in the sampler's final solve
+that takes 80 iterations of forward kinematics and its backward over the whole motion (most of
+`sample`'s time with a few-step sampler), and still stops short of the minimum. Without the
+rigid-body constraint the same terms are a quadratic in the joint positions, and separable:
+each joint coordinate's T values interact only with their own neighbours in time. So
+`solve_joints` minimises, per joint coordinate, with the weights of `RefineConfig`:
+
+    w_joints        · mean ‖Y − X‖²                        follow the (projected) prediction
+  + w_smooth_joints · mean ‖Y_{t-1} − 2Y_t + Y_{t+1}‖²     joint acceleration (w_smooth_contact
+                                                          for the contact joints, if set)
+  + w_contact       · mean over planted entries of ‖Y_t − mean_span Y‖²  (foot lock)
+  + w_reach         · weighted mean of ‖Y_f,j − p‖²         (a hand on an object, a seated pelvis)
+  + w_floor         · floor_y − y, squared, where a joint centre is below the floor
+  + w_clearance     · X_y − y, squared, where a swinging foot joint is below its prediction
+
+one sparse symmetric positive definite system of T unknowns per joint coordinate (banded: the
+acceleration term spans five frames, a lock span couples its own frames). The two one-sided
+terms are active-set constraints: solve, switch on the entries that violate them, solve again
+until the set stops changing (7-9 solves of the heights of the joints whose set changed, on
+sampled motions). The minimum is exact where L-BFGS stops early, so the sampler gives this
+solve its own, weaker acceleration weights (`sampling.assemble.solve_weights`).
+
+`solve.MotionBody.solve_joint_space` then moves the trunk where a held limb's end is out of its
+reach (`into_reach`) and puts the result on the body analytically (bone directions, two-bone
+limbs: ankles, wrists and pelvis go where this solve put them). The rotation terms of `refine`
+(rotation acceleration, prior) have no joint-space form: the twist comes from the episodes'
+rotations, interpolated.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import solveh_banded
+from scipy.ndimage import gaussian_filter1d
+
+from motiongen.body.fit import RefineConfig
+from motiongen.body.limbs import LIMBS
+from motiongen.spans import true_runs
+
+ACTIVE_SET_ROUNDS = 20     # solves at most; on sampled motions the set settles in 7-9
+
+
+def solve_joints(X: np.ndarray, cfg: RefineConfig, planted: np.ndarray | None = None, contact_joints=(),
+                 reach: tuple | None = None) -> np.ndarray:
+    """Joints Y (T, 22, 3) float64 minimising the objective above for targets X (T, 22, 3).
+
+    planted (T, C) bool flags `contact_joints` (C,) as planted (lock spans; the others swing,
+    for the clearance term); None: no lock and no clearance. reach = (frames (N,), joints (N,),
+    points (N, 3), weights (N,)) or None."""
+    X = np.asarray(X, np.float64)
+    T, J = X.shape[:2]
+    if T < 3:
+        return X.copy()
+    # Each term's weight per squared entry, all multiplied by J·T (the joint term's count), in
+    # lower banded storage (3, T): the joint term's diagonal plus the acceleration term's DᵀD.
+    n = J * T
+    dtd = _dtd_banded(T)
+    per_acc = n / (J * (T - 2))                         # the acceleration term's mean, per entry
+    base = np.zeros((3, T))
+    base[0] = cfg.w_joints
+    feet = base + (cfg.w_smooth_joints if cfg.w_smooth_contact is None else cfg.w_smooth_contact) * per_acc * dtd
+    base += cfg.w_smooth_joints * per_acc * dtd
+    contact_joints = list(contact_joints)
+    bases = [feet if j in contact_joints else base for j in range(J)]     # (3, T) per joint
+    diag = np.zeros((J, T))                             # reach and lock diagonals, per joint
+    rhs = cfg.w_joints * X.transpose(1, 2, 0).copy()    # (J, 3, T)
+    locks: dict[int, tuple] = {}                        # joint -> (span indicator (T, k), weight w/n per span (k,))
+    planted = None if planted is None else np.asarray(planted, bool)
+    if planted is not None and len(contact_joints) and cfg.w_contact and planted.any():
+        w = cfg.w_contact * n / planted.sum()
+        for c, j in enumerate(contact_joints):
+            spans = true_runs(planted[:, c])
+            if spans:
+                U = np.zeros((T, len(spans)))
+                for k, (a, b) in enumerate(spans):
+                    U[a:b, k] = 1.0
+                    diag[j, a:b] += w
+                locks[j] = (U, w / U.sum(0))
+    if reach is not None and cfg.w_reach:
+        f, jj, p, w = (np.asarray(a) for a in reach)
+        w = cfg.w_reach * n * w.astype(np.float64) / max(float(w.sum()), 1e-9)
+        np.add.at(diag, (jj, f), w)
+        np.add.at(rhs, (jj, slice(None), f), w[:, None] * p)
+    # Horizontal coordinates: no one-sided terms, solved once.
+    Y = np.empty((T, J, 3))
+    for j in range(J):
+        Y[:, j, [0, 2]] = _solve(bases[j], diag[j], locks.get(j), rhs[j, [0, 2]].T)
+    # Heights: the floor and the swinging feet's clearance are one-sided (active where violated).
+    bound_w = np.zeros((J, T))
+    bound_y = np.zeros((J, T))
+    if cfg.w_floor:
+        bound_w[:] = cfg.w_floor * n / T
+        bound_y[:] = cfg.floor_y
+    swing_w = np.zeros((J, T))
+    if planted is not None and cfg.w_clearance and len(contact_joints):
+        swing = ~planted                                                                 # (T, C)
+        w = cfg.w_clearance * n / max(int(swing.sum()), 1)
+        for c, j in enumerate(contact_joints):
+            swing_w[j] = np.where(swing[:, c], w, 0.0)
+    floor_on = np.zeros((J, T), bool)
+    swing_on = np.zeros((J, T), bool)
+    todo = range(J)
+    # Semismooth Newton on the hinges: each solve's violated entries are the next one's active
+    # set; only the joints whose set changed are solved again.
+    for _ in range(ACTIVE_SET_ROUNDS):
+        for j in todo:
+            fw = np.where(floor_on[j], bound_w[j], 0.0)
+            sw = np.where(swing_on[j], swing_w[j], 0.0)
+            b = rhs[j, 1] + fw * bound_y[j] + sw * X[:, j, 1]
+            Y[:, j, 1] = _solve(bases[j], diag[j] + fw + sw, locks.get(j), b[:, None])[:, 0]
+        new_floor = (Y[:, :, 1].T < bound_y) & (bound_w > 0)
+        new_swing = (Y[:, :, 1].T < X[:, :, 1].T) & (swing_w > 0)
+        todo = np.nonzero((new_floor != floor_on).any(1) | (new_swing != swing_on).any(1))[0]
+        floor_on, swing_on = new_floor, new_swing
+        if not len(todo):
+            break
+    return Y
+
+
+def _dtd_banded(T: int) -> np.ndarray:
+    """DᵀD of the second difference (T-2, T) in lower banded storage (3, T)."""
+    ab = np.zeros((3, T))
+    c = (1.0, -2.0, 1.0)                          # row k of D: +1, -2, +1 at k, k+1, k+2
+    for a in range(3):
+        for b in range(a, 3):
+            ab[b - a, a:a + T - 2] += c[a] * c[b]
+    return ab
+
+
+def _solve(base: np.ndarray, diag: np.ndarray, lock, b: np.ndarray) -> np.ndarray:
+    """x (T, m) solving (base + diag(diag) − Σ_spans w_k u_k u_kᵀ) x = b (T, m): the banded part
+    by Cholesky, the lock's rank-one parts (u_k a span's indicator) by Woodbury's identity."""
+    ab = base.copy()
+    ab[0] += diag
+    if lock is None:
+        return solveh_banded(ab, b, lower=True)
+    U, w = lock                                                                       # (T, k), (k,)
+    Z = solveh_banded(ab, np.concatenate([b, U], 1), lower=True)                      # B⁻¹ [b, U]
+    Bb, BU = Z[:, :b.shape[1]], Z[:, b.shape[1]:]
+    small = np.diag(1.0 / w) - U.T @ BU                                               # (k, k)
+    return Bb + BU @ np.linalg.solve(small, U.T @ Bb)
+
+
+# The joints a trunk shift moves (`into_reach`): everything but the limbs' middles and ends (and
+# the toes): the middles follow from the two-bone fit, the ends stay where the solve put them.
+LIMB_JOINTS = tuple((m, e) + ((leaf,) if leaf >= 0 else ()) for _, m, e, leaf in LIMBS)
+TRUNK = tuple(j for j in range(22) if all(j not in limb for limb in LIMB_JOINTS))
+SMOOTH_ROUNDS = 8         # smoothing and topping up of the shift
+SHIFT_ROUNDS = 8          # cyclic projections onto the held limbs' reach constraints
+
+
+def into_reach(Y: np.ndarray, reach: np.ndarray, held: np.ndarray, sigma: float) -> np.ndarray:
+    """Y (T, 22, 3) with the trunk moved, frame by frame, by the smallest translation that
+    brings the end (ankle, wrist) of every held limb (`held` (T, 4) bool in `limbs.LIMBS` order,
+    `held_limbs`) within `reach` (4,) m of its root (hip, shoulder), smoothed over time
+    (Gaussian, sigma frames) and topped up again where the smoothing left an end out of reach.
+
+    The solve in joint space holds a planted foot or a hand on an object where the objective
+    wants it, which may be farther from the hip or shoulder than the limb is long: the rigid body
+    then has to bring the hips or shoulders closer, as the rotation solve's coupling through the
+    skeleton does. Without it the leg snaps straight and the foot slides off its spot."""
+    held = np.asarray(held, bool)
+    shift = _reach_shift(Y, reach, held, np.zeros((Y.shape[0], 3)))
+    if not shift.any():
+        return Y
+    if sigma > 0:
+        # smoothing lowers the peaks below what they need; what is still missing is added,
+        # smoothed too, a few rounds: a shift that is smooth and (nearly) enough
+        shift = gaussian_filter1d(shift, sigma, axis=0, mode="nearest")
+        for _ in range(SMOOTH_ROUNDS):
+            missing = _reach_shift(Y, reach, held, shift) - shift
+            if not missing.any():
+                break
+            shift += gaussian_filter1d(missing, sigma, axis=0, mode="nearest")
+    out = Y.copy()
+    out[:, list(TRUNK)] += shift[:, None]
+    return out
+
+
+def _reach_shift(Y: np.ndarray, reach: np.ndarray, held: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """shift (T, 3) moved on by cyclic projections onto the held limbs' reach constraints, each
+    linearised along its root-end line."""
+    shift = shift.copy()
+    for _ in range(SHIFT_ROUNDS):
+        moved = False
+        for k, (r, _, e, _) in enumerate(LIMBS):
+            v = Y[:, e] - (Y[:, r] + shift)                                        # (T, 3) root to end
+            d = np.linalg.norm(v, axis=-1)
+            over = np.where(held[:, k] & (d > reach[k] + 1e-6), d - reach[k], 0.0)
+            if not over.any():
+                continue
+            moved = True
+            shift += over[:, None] * v / np.maximum(d, 1e-9)[:, None]
+        if not moved:
+            break
+    return shift
+
+
+def held_limbs(T: int, reach: tuple | None) -> np.ndarray:
+    """(T, 4) bool in `limbs.LIMBS` order, the limbs whose ends `into_reach` must reach: the legs
+    on every frame (a planted foot is held; a swinging one out of reach would fall short of its
+    path, and a constraint that switched on at each plant would jolt the trunk), an arm on the
+    frames its wrist has a reach target (reach = (frames, joints, ...) or None)."""
+    held = np.zeros((T, len(LIMBS)), bool)
+    for k, (_, _, e, leaf) in enumerate(LIMBS):
+        held[:, k] = leaf >= 0
+        if reach is not None:
+            f, jj = np.asarray(reach[0]), np.asarray(reach[1])
+            held[f[jj == e], k] = True
+    return held
