@@ -2,6 +2,7 @@
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -93,6 +94,13 @@ def test_sigkill_then_resume_is_bitwise_identical(dataset, tmp_path):
         assert torch.equal(sa[i]["exp_avg_sq"], sb[i]["exp_avg_sq"])
 
 
+def _free_port() -> int:
+    """A TCP port nothing listens on now (a fixed one was once taken on a busy host)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 @pytest.mark.parametrize("per_rank", [1, 4])
 def test_two_process_ddp(dataset, tmp_path, per_rank):
     """2 processes, heavy condition dropout: whole batches without a condition on one rank
@@ -103,7 +111,7 @@ def test_two_process_ddp(dataset, tmp_path, per_rank):
     args = _args(dataset, tmp_path, 30, **{"train.batch_size": 2 * per_rank, "train.cond_drop_scene": 0.5,
                                            "train.cond_drop_actions": 0.5, "train.ckpt_every": 10})
     r = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node=2",
-                        f"--master_port={29517 + per_rank}", str(ROOT / "train.py"), *args],
+                        f"--master_port={_free_port()}", str(ROOT / "train.py"), *args],
                        capture_output=True, text=True, env=env, cwd=ROOT, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     ck = _weights(tmp_path / "checkpoints" / "last.pt")
