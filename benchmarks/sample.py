@@ -150,7 +150,7 @@ def main(argv):
     print(f"speed: preset={a['preset']}, {30.0 / int(a['stride']):g} fps windows of {a['length']} frames, "
           f"{a['threads']} threads, {a['episodes']} episodes per run, "
           f"body projection + solve {'on' if a['project'] == 'true' else 'off'}, one child process per row")
-    print(f"precision=auto (the default) uses {resolve_precision(_random_loaded(a['preset'], 3, 16).model, 'auto')} "
+    print(f"precision=auto (the default) uses {resolve_precision(_random_loaded(a['preset'], int(a['stride']), int(a['length'])).model, 'auto')} "
           "for this model")
     print(f"{'sampler':>10} {'batch':>5} {'precision':>9} {'solve':>11} {'motion s':>9} {'wall s':>7} {'RTF':>6} "
           f"{'frames/s':>8} {'x first':>7} {'body %':>6} {'peak MiB':>8}")

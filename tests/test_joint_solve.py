@@ -170,10 +170,10 @@ def test_into_reach_brings_the_hips_to_a_far_planted_foot(bm):
     smoothly and by about what it needs, the ankle is then within reach but for a centimetre at
     the step's edges (the legs' soft IK takes that), and the limbs' ends stay where they were."""
     from motiongen.body.joint_solve import LIMB_JOINTS, TRUNK, held_limbs, into_reach
-    from motiongen.body.limbs import LIMBS
+    from motiongen.body.limbs import LIMBS, limb_lengths
 
-    rest = bm.rest_joints(torch.zeros(bm.num_betas)).double().numpy()                 # (22, 3)
-    lengths = np.array([np.linalg.norm(rest[m] - rest[r]) + np.linalg.norm(rest[e] - rest[m]) for r, m, e, _ in LIMBS])
+    rest_t = bm.rest_joints(torch.zeros(bm.num_betas)).double()
+    rest, lengths = rest_t.numpy(), limb_lengths(rest_t).numpy()                       # (22, 3), (4,)
     T = 40
     Y = np.repeat(rest[None], T, 0)
     hip, ankle = LIMBS[0][0], LIMBS[0][2]

@@ -14,6 +14,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from motiongen.geometry import facing_yaw
 from motiongen.skeleton import BODY_JOINT_NAMES
 
 _I = BODY_JOINT_NAMES.index
@@ -69,8 +70,7 @@ def place_limbs(P: Tensor, X: Tensor, rest: Tensor, bend: Tensor | None = None, 
     exactly (a hand goes on an object)."""
     P = P.clone()
     for r, m, e, leaf in LIMBS:
-        upper = (rest[..., m, :] - rest[..., r, :]).norm(dim=-1).expand(P.shape[:-2])
-        lower = (rest[..., e, :] - rest[..., m, :]).norm(dim=-1).expand(P.shape[:-2])
+        upper, lower = (b.expand(P.shape[:-2]) for b in _bones(rest, r, m, e))
         pole = X[..., m, :] if bend is None else P[..., r, :] + _bend_direction(bend, r, m, e)
         leg = leaf >= 0
         P[..., m, :], P[..., e, :] = two_bone(P[..., r, :], X[..., e, :], pole, upper, lower, soft if leg else 0.0)
@@ -86,23 +86,28 @@ def place_limbs(P: Tensor, X: Tensor, rest: Tensor, bend: Tensor | None = None, 
 BEND_PRIOR = 0.02        # m
 
 
+def _bones(rest: Tensor, r: int, m: int, e: int) -> tuple[Tensor, Tensor]:
+    """A limb's upper and lower bone lengths (...,) in rest joints (..., 22, 3)."""
+    return (rest[..., m, :] - rest[..., r, :]).norm(dim=-1), (rest[..., e, :] - rest[..., m, :]).norm(dim=-1)
+
+
+def limb_lengths(rest: Tensor) -> Tensor:
+    """(..., 4) each limb's full reach, upper plus lower bone, in `LIMBS` order, of rest joints (..., 22, 3)."""
+    return torch.stack([sum(_bones(rest, r, m, e)) for r, m, e, _ in LIMBS], -1)
+
+
 def _bend_direction(bend: Tensor, r: int, m: int, e: int) -> Tensor:
     """The middle joint's offset (..., 3) from the root-end line of its own chain in `bend`
     (..., 22, 3), less any part of it the wrong way, plus BEND_PRIOR the way the limb bends
-    (the body's forward for a knee, its back for an elbow; forward from the hips or shoulders
-    and the world's up, +y)."""
+    (the body's forward for a knee, its back for an elbow; `geometry.facing_yaw`)."""
     root, middle, end = bend[..., r, :], bend[..., m, :], bend[..., e, :]
     line = end - root
     u = line / line.norm(dim=-1, keepdim=True).clamp(min=1e-9)
     p = middle - root
     own = p - (p * u).sum(-1, keepdim=True) * u
     leg = r in (_I("left_hip"), _I("right_hip"))
-    a, b = ((_I("left_hip"), _I("right_hip")) if leg else (_I("left_shoulder"), _I("right_shoulder")))
-    side = bend[..., a, :] - bend[..., b, :]                                   # the body's left
-    up = torch.zeros_like(side)
-    up[..., 1] = 1.0
-    forward = torch.cross(side, up, dim=-1)
-    way = forward / forward.norm(dim=-1, keepdim=True).clamp(min=1e-9) * (1.0 if leg else -1.0)
+    yaw = facing_yaw(bend)                                                     # the body's forward
+    way = torch.stack([torch.sin(yaw), torch.zeros_like(yaw), torch.cos(yaw)], -1) * (1.0 if leg else -1.0)
     against = (own * way).sum(-1, keepdim=True).clamp(max=0)                   # bent the wrong way
     return own - against * way + BEND_PRIOR * way
 

@@ -32,7 +32,7 @@ from scipy.optimize import least_squares
 from motiongen.body.analytic import analytic_init
 from motiongen.body.fit import FitResult, RefineConfig, refine
 from motiongen.body.joint_solve import held_limbs, into_reach, solve_joints
-from motiongen.body.limbs import LIMBS, place_limbs
+from motiongen.body.limbs import limb_lengths, place_limbs
 from motiongen.body.model import BodyModel, BodyParams, forward_kinematics
 from motiongen.body.rotations import matrix_to_axis_angle
 from motiongen.metrics import bone_lengths
@@ -167,9 +167,7 @@ class MotionBody:
         X = np.asarray(joints[:, :NUM_BODY_JOINTS], np.float64)
         Y = solve_joints(X, cfg, planted, contact_joints, reach)                                # (T, 22, 3)
         T = Y.shape[0]
-        rest = self.rest[sample].double().numpy()
-        lengths = np.array([np.linalg.norm(rest[m] - rest[r]) + np.linalg.norm(rest[e] - rest[m])
-                            for r, m, e, _ in LIMBS])
+        lengths = limb_lengths(self.rest[sample].double()).numpy()                              # (4,)
         Y = into_reach(Y, lengths, held_limbs(T, reach), TRUNK_SHIFT_SMOOTHING)
         Yt = torch.as_tensor(Y, dtype=self.rest.dtype)
         bend = torch.as_tensor(gaussian_filter1d(X, BEND_SMOOTHING, axis=0, mode="nearest"), dtype=Yt.dtype)
