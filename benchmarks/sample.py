@@ -2,7 +2,7 @@
 
     python benchmarks/sample.py [ckpt=PATH] [threads=2] [preset=paper] [episodes=6] [project=true]
                                 [stride=3] [length=16] [samplers=ddpm-100,ddim-50,ddim-25,ddim-10] [batches=1,8]
-                                [precisions=fp32,bf16] [solves=lbfgs]
+                                [precisions=fp32,bf16] [solves=lbfgs] [memos=on]
 
 Speed: the `paper` preset with random-init weights (speed does not depend on training) on the
 CPU, one row per sampler x batch x precision x final-solve method (`loop.solve`), each run in a
@@ -12,6 +12,8 @@ walk in an empty scene: real-time factor (seconds of motion produced, all sample
 of compute), frames per second of output (30 fps frames, all samples), the ratio of its
 real-time factor to the first row's, the share of the time spent putting the motion on the
 body (the per-episode projection and the final solve) and the child's peak resident memory.
+`memos=off,on` adds rows with the action encoder run on every window instead of once per
+distinct label window (`Denoiser.memoise_actions`).
 `project=false` measures the network alone. A distilled student with n steps costs exactly
 what `ddim-n` costs here (the same network, guidance folded in, n evaluations per window), so
 the issue-27 figure is
@@ -55,7 +57,7 @@ SETTINGS = [("ddpm", 100), ("ddim", 50), ("ddim", 25), ("ddim", 10)]
 def _args(argv):
     out = {"ckpt": None, "threads": "2", "preset": "paper", "episodes": "6", "project": "true",
            "stride": "3", "length": "16", "samplers": ",".join(f"{s}-{n}" for s, n in SETTINGS), "batches": "1,8",
-           "precisions": "fp32,bf16", "solves": "lbfgs"}
+           "precisions": "fp32,bf16", "solves": "lbfgs", "memos": "on"}
     for a in argv:
         k, _, v = a.partition("=")
         out[k] = v
@@ -92,7 +94,7 @@ def _samplers(spec: str) -> list[tuple[str, int]]:
     return out
 
 
-def _speed_row(a: dict, sampler: str, steps: int, batch: int, prec: str, solve: str, out) -> None:
+def _speed_row(a: dict, sampler: str, steps: int, batch: int, prec: str, solve: str, memo: str, out) -> None:
     """One speed row in this (child) process: the same run at batch 1 untimed first (the first
     calls' set-up is not sampling speed: a one-episode warm-up left the timed run's body work
     at 2-3x its later cost), then the timed one. Puts (motion s, frames, wall s, body s, peak
@@ -101,6 +103,7 @@ def _speed_row(a: dict, sampler: str, steps: int, batch: int, prec: str, solve: 
     torch.manual_seed(0)
     loaded = _random_loaded(a["preset"], int(a["stride"]), int(a["length"]))
     loaded.model = loaded.model.blocks_to(PRECISIONS[prec])
+    loaded.model.memoise_actions = memo == "on"
     project = a["project"] == "true"
     walk, _ = plan_scene_route((0, 0), [Goal([0, 100.0])], loaded.action_names, path="straight")
     bm = load_body_model()                         # loaded once, as `sample` and `evaluate` do
@@ -111,6 +114,7 @@ def _speed_row(a: dict, sampler: str, steps: int, batch: int, prec: str, solve: 
         generate(loaded, route=walk, sampler=SamplerSettings(sampler, steps), body_model=bm, loop=loop,
                  generator=torch.Generator().manual_seed(1))
         body_s[0] = 0.0
+        loaded.model.eval()                        # an empty action memo: the timed run fills its own
         t = time.perf_counter()
         m = generate(loaded, route=walk, num_samples=batch, sampler=SamplerSettings(sampler, steps),
                      generator=torch.Generator().manual_seed(0), loop=loop, body_model=bm)
@@ -147,27 +151,30 @@ def main(argv):
     for solve in solves:
         if solve not in SOLVE_METHODS:
             sys.exit(f"solves: expected some of {', '.join(SOLVE_METHODS)}, got {solve!r}")
+    memos = [m for m in a["memos"].split(",") if m]
+    if not memos or set(memos) - {"on", "off"}:
+        sys.exit(f"memos: expected on, off or both, got {a['memos']!r}")
     print(f"speed: preset={a['preset']}, {30.0 / int(a['stride']):g} fps windows of {a['length']} frames, "
           f"{a['threads']} threads, {a['episodes']} episodes per run, "
           f"body projection + solve {'on' if a['project'] == 'true' else 'off'}, one child process per row")
     print(f"precision=auto (the default) uses {resolve_precision(_random_loaded(a['preset'], int(a['stride']), int(a['length'])).model, 'auto')} "
           "for this model")
-    print(f"{'sampler':>10} {'batch':>5} {'precision':>9} {'solve':>11} {'motion s':>9} {'wall s':>7} {'RTF':>6} "
+    print(f"{'sampler':>10} {'batch':>5} {'precision':>9} {'solve':>11} {'memo':>4} {'motion s':>9} {'wall s':>7} {'RTF':>6} "
           f"{'frames/s':>8} {'x first':>7} {'body %':>6} {'peak MiB':>8}")
     ctx = multiprocessing.get_context("spawn")
     first = {}
     for sampler, steps in _samplers(a["samplers"]):
         for batch in map(int, filter(None, a["batches"].split(","))):
             for prec in precisions:
-                for solve in solves:
+                for solve, memo in ((s, m) for s in solves for m in memos):
                     q = ctx.Queue()
-                    p = ctx.Process(target=_speed_row, args=(a, sampler, steps, batch, prec, solve, q))
+                    p = ctx.Process(target=_speed_row, args=(a, sampler, steps, batch, prec, solve, memo, q))
                     p.start()
                     motion_s, frames, wall, body, rss = q.get()
                     p.join()
                     rtf = motion_s / wall
                     ref = first.setdefault(batch, rtf)
-                    print(f"{sampler + '-' + str(steps):>10} {batch:>5} {prec:>9} {solve:>11} {motion_s:9.1f} "
+                    print(f"{sampler + '-' + str(steps):>10} {batch:>5} {prec:>9} {solve:>11} {memo:>4} {motion_s:9.1f} "
                           f"{wall:7.2f} {rtf:6.2f} {frames / wall:8.0f} {rtf / ref:7.2f} {100 * body / wall:6.1f} "
                           f"{rss:8.0f}", flush=True)
     if not a["ckpt"]:

@@ -180,6 +180,31 @@ def test_sampler_encodes_condition_once(one_thread):
     assert len(calls) == 1  # conditional encode only; the unconditional twin skips the encoder
 
 
+def test_action_memo_encodes_each_label_window_once_and_forgets_old_weights(one_thread):
+    model = _tiny(action_per_frame=True)
+    rows = []
+    model.action_encoder.register_forward_hook(lambda mod, inp, out: rows.append(inp[0].shape[0]))
+    a = torch.zeros(5, L, A)
+    a[:, :, 1] = 1
+    a[3, L // 2:, 2] = 1                                  # rows 0, 1, 2, 4 share one window
+    with torch.no_grad():
+        pooled, frames = model._encode_actions(a, None, 5)
+        want, want_frames = model.action_encoder(a)
+        torch.testing.assert_close(pooled, want)
+        torch.testing.assert_close(frames, want_frames)
+        assert rows == [2, 5]                             # two distinct windows; then the direct call
+        model._encode_actions(a[3:4], None, 1)            # seen before: no encoder call
+        assert rows == [2, 5]
+        model.action_encoder.embed.bias.add_(0.5)         # new weights in place (an EMA update)
+        again, _ = model._encode_actions(a[:1], None, 1)
+        torch.testing.assert_close(again, model.action_encoder(a[:1])[0])
+        assert rows[2] == 1
+    # with autograd on (training, distillation's student) the encoder runs on every call
+    model.train()
+    model._encode_actions(a, None, 5)
+    assert rows[-1] == 5
+
+
 def test_tiny_overfits_one_batch(one_thread):
     torch.manual_seed(0)
     model = build_model(model_config("tiny", dropout=0.0, scene_dropout=0.0, action_dropout=0.0), J, A, L)

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
+
 import torch
 from torch import Tensor, nn
 
@@ -34,4 +37,55 @@ class ActionEncoder(nn.Module):
         h = self.blocks(self.drop(self.embed(actions) + self.pos[:L]))  # (B, L, W)
         pooled = self.out(h.mean(1))  # (B, out_dim)
         frames = self.out_frames(h) if self.out_frames is not None else None  # (B, L, out_dim)
+        return pooled, frames
+
+
+class ActionMemo:
+    """The action encoder's outputs by label window, for sampling. An episode's windows repeat
+    their labels (every walking window is all "walk") and a batch's rows mostly share them,
+    while the encoder costs as much per row as a denoising step: encoding each distinct row
+    once is the same answer for less (up to the last bits of a batched matrix product).
+    Dropped when the encoder's weights change: a parameter's storage or in-place version
+    (inference-mode weights have no version: only their storage, and `Denoiser.train`, count)."""
+
+    def __init__(self, size: int = 256):
+        self.size = size
+        self.rows: OrderedDict[bytes, tuple[Tensor, Tensor | None]] = OrderedDict()
+        self.stamp: tuple = ()
+        self.lock = threading.Lock()    # `serve` may sample from more than one thread
+
+    def __getstate__(self):             # deepcopy / pickle: an empty memo, a new lock
+        return {"size": self.size}
+
+    def __setstate__(self, state):
+        self.__init__(state["size"])
+
+    def clear(self) -> None:
+        with self.lock:
+            self.rows.clear()
+
+    def __call__(self, enc: ActionEncoder, actions: Tensor) -> tuple[Tensor, Tensor | None]:
+        """enc in eval mode, actions (B, L, A) -> pooled (B, out_dim), frames (B, L, out_dim) | None."""
+        with self.lock:
+            return self._lookup(enc, actions)
+
+    def _lookup(self, enc: ActionEncoder, actions: Tensor) -> tuple[Tensor, Tensor | None]:
+        stamp = (actions.shape[1:], actions.dtype, actions.device,
+                 tuple((p.data_ptr(), -1 if p.is_inference() else p._version) for p in enc.parameters()))
+        if stamp != self.stamp:
+            self.rows.clear()
+            self.stamp = stamp
+        keys = [r.tobytes() for r in actions.detach().to("cpu", torch.float32).numpy()]
+        missing = list(dict.fromkeys(k for k in keys if k not in self.rows))
+        if missing:
+            first = {k: i for i, k in reversed(list(enumerate(keys)))}
+            pooled, frames = enc(actions[[first[k] for k in missing]])        # (M, W), (M, L, W) | None
+            for i, k in enumerate(missing):
+                self.rows[k] = (pooled[i], None if frames is None else frames[i])
+        for k in keys:
+            self.rows.move_to_end(k)
+        while len(self.rows) > max(self.size, len(set(keys))):
+            self.rows.popitem(last=False)
+        pooled = torch.stack([self.rows[k][0] for k in keys])                  # (B, W)
+        frames = None if enc.out_frames is None else torch.stack([self.rows[k][1] for k in keys])
         return pooled, frames

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from motiongen.models.action_encoder import ActionEncoder
+from motiongen.models.action_encoder import ActionEncoder, ActionMemo
 from motiongen.models.condition import Condition
 from motiongen.models.presets import ModelConfig
 from motiongen.models.layers import Dropout, TransformerStack, sinusoidal_embedding
@@ -109,8 +109,19 @@ class Denoiser(nn.Module):
             self.action_null = nn.Parameter(torch.randn(W) * 0.02)
             self.action_null_frames = (nn.Parameter(torch.randn(W) * 0.02)
                                        if cfg.action_per_frame else None)
+            self._action_memo = ActionMemo()
 
     _blocks_dtype: torch.dtype | None = None
+    # Sampling looks the action encoder's outputs up by label window (`ActionMemo`); False runs
+    # the encoder on every call (benchmarks/sample.py measures what the memo saves).
+    memoise_actions: bool = True
+
+    def train(self, mode: bool = True) -> "Denoiser":
+        # A switch of mode is where weights are swapped in (EMA, a loaded checkpoint): start the
+        # action memo afresh there too, beside its own check of the weights' versions.
+        if self.action_encoder is not None:
+            self._action_memo.clear()
+        return super().train(mode)
 
     def blocks_to(self, dtype: torch.dtype) -> "Denoiser":
         """Hold the transformer layers (nearly all of the per-step compute) in `dtype`, e.g.
@@ -165,7 +176,9 @@ class Denoiser(nn.Module):
             if enc.per_frame:
                 frames = self.action_null_frames.expand(n, self.window, -1)  # (n, L, W)
             return self.action_null.expand(n, -1), frames
-        pooled, frames = enc(actions)  # (n, W), (n, L, W) | None
+        # sampling (no autograd): each distinct label window once (ActionMemo)
+        memo = self.memoise_actions and not self.training and not torch.is_grad_enabled()
+        pooled, frames = self._action_memo(enc, actions) if memo else enc(actions)  # (n, W), (n, L, W) | None
         if drop is None and self.training:
             drop = torch.zeros(n, dtype=torch.bool, device=pooled.device)
         if drop is not None:
