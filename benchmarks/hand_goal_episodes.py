@@ -1,0 +1,61 @@
+"""How close the network's wrist comes to the hand goal the sampler gives it, in the sampler's
+own pick-up episodes (not a timed test).
+
+    python benchmarks/hand_goal_episodes.py ckpt=[PATH] split=val "scenes=[71,73,75,77,79]" pairs=1 k=2 ...
+
+Any `motiongen evaluate` keys: the evaluation runs as usual (its report goes to `out`), with the
+sampler's `hand_goals` and `run_episode` wrapped so that every episode given a hand goal
+(`loop.hand_goal`, checkpoints trained with `mask.p_hand` or `mask.p_hand_action`) records, per
+sample, the distance from the network's own wrist (before the body) to the goal at the window's
+last frame (where the goal is given), its closest approach over the window, the same after
+the body projection, and at the window's first frame. Prints the medians and quartiles.
+`benchmarks/hand_goal.py` measures the same on validation windows instead of sampled episodes.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from motiongen.commands import evaluate_command
+from motiongen.sampling import autoregressive
+
+RECORDS: list[tuple[float, float, float, float]] = []
+
+
+def _recording(run_episode):
+    def run(spec, loaded, query, body_model, state, t, *args, **kw):
+        run_episode(spec, loaded, query, body_model, state, t, *args, **kw)
+        hand = getattr(t, "hand", None)
+        if hand is None:
+            return
+        ep = state.episodes[-1]
+        for s in np.flatnonzero(hand >= 0):
+            goal = t.hand_point[s]                                                          # (3,) world
+            raw = np.linalg.norm(ep.raw[s, :, hand[s]] - goal, axis=-1)                      # (L,)
+            body = np.linalg.norm(ep.window[s, :, hand[s]] - goal, axis=-1)                  # (L,)
+            RECORDS.append((raw[-1], raw.min(), body[-1], raw[0]))
+    return run
+
+
+def main(argv) -> None:
+    autoregressive.run_episode = _recording(autoregressive.run_episode)
+    sys.argv = ["evaluate", *argv]
+    try:
+        evaluate_command.main()
+    except SystemExit as e:                 # Hydra's main exits; the figures come after
+        if e.code not in (0, None):
+            raise
+    a = np.asarray(RECORDS).reshape(-1, 4)
+    print(f"episodes x samples with a hand goal: {len(a)}")
+    if not len(a):
+        return
+    for i, name in enumerate(("network's wrist at the goal frame", "closest over the window",
+                              "on the body at the goal frame", "at the window's first frame")):
+        q = np.percentile(a[:, i], [25, 50, 75])
+        print(f"{name:>34}: median {q[1]:.3f} m (quartiles {q[0]:.3f}, {q[2]:.3f})")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
