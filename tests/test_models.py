@@ -251,12 +251,17 @@ def test_bf16_layers_keep_the_output_within_a_few_percent(one_thread):
         _tiny().train().blocks_to(torch.bfloat16)
 
 
-def test_precision_auto_is_bf16_for_paper_size_layers_only():
+def test_precision_auto_is_bf16_for_paper_size_layers_on_native_bf16_only(monkeypatch):
     from motiongen.errors import ConfigError
+    from motiongen.loading import build
     from motiongen.loading.build import resolve_precision
 
     paper = build_model(model_config("paper"), J, A, L)
+    assert isinstance(build.native_bf16(torch.device("cpu")), bool)
+    monkeypatch.setattr(build, "native_bf16", lambda device: device.type == "cpu")
     assert resolve_precision(_tiny(), "auto") == "fp32" and resolve_precision(paper, "auto") == "bf16"
+    monkeypatch.setattr(build, "native_bf16", lambda device: False)      # an AVX2-only CPU
+    assert resolve_precision(paper, "auto") == "fp32"
     assert resolve_precision(paper, "fp32") == "fp32" and resolve_precision(_tiny(), "bf16") == "bf16"
     with pytest.raises(ConfigError, match="precision: expected one of fp32, bf16, auto"):
         resolve_precision(paper, "fp16")

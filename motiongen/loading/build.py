@@ -189,9 +189,11 @@ def load_weights(module: torch.nn.Module, weights: dict, path, part: str, model_
 
 
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16}
-# precision=auto: bf16 from this many parameters in the denoiser's transformer layers. On a CPU
-# the paper-size layers (12.6 M) run their steps faster in bf16, the quality recipe's (1.2 M) do
-# not (benchmarks/sample.py measures both).
+# precision=auto: bf16 from this many parameters in the denoiser's transformer layers, where
+# the device multiplies bfloat16 natively. On such a CPU the paper-size layers (12.6 M) run
+# their steps faster in bf16, the quality recipe's (1.2 M) do not; on a CPU without (AVX2 only)
+# bf16 is emulated and the paper-size steps are slower than fp32 (benchmarks/sample.py
+# measures both).
 AUTO_BF16_PARAMS = 4_000_000
 
 
@@ -205,7 +207,16 @@ def resolve_precision(model, precision: str) -> str:
     """fp32 | bf16 for a model and a `precision` key (fp32, bf16 or auto)."""
     if check_precision(precision) != "auto":
         return precision
-    return "bf16" if sum(p.numel() for p in model.blocks.parameters()) >= AUTO_BF16_PARAMS else "fp32"
+    big = sum(p.numel() for p in model.blocks.parameters()) >= AUTO_BF16_PARAMS
+    return "bf16" if big and native_bf16(next(model.parameters()).device) else "fp32"
+
+
+def native_bf16(device: torch.device) -> bool:
+    """Whether `device` multiplies bfloat16 matrices in hardware: a CUDA device that supports
+    it, or a CPU whose oneDNN has bf16 kernels (AVX-512 or AMX; not an AVX2-only CPU)."""
+    if device.type == "cuda":
+        return torch.cuda.is_bf16_supported()
+    return device.type == "cpu" and bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
 
 
 def load_model(path, device="cpu", use_ema: bool = True, precision: str = "fp32") -> LoadedModel:
