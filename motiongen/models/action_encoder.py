@@ -42,9 +42,9 @@ class ActionEncoder(nn.Module):
 
 class ActionMemo:
     """The action encoder's outputs by label window, for sampling. An episode's windows repeat
-    their labels (every walking window is all "walk") and a batch's rows mostly share them,
-    while the encoder costs as much per row as a denoising step: encoding each distinct row
-    once is the same answer for less (up to the last bits of a batched matrix product).
+    their labels (every walking window is all "walk") and a batch's rows mostly share them:
+    encoding each distinct row once is the same answer (up to the last bits of a batched matrix
+    product) for less, a third of a 2-step student's time at batch 1 (docs/results.md).
     Dropped when the encoder's weights change: a parameter's storage or in-place version
     (inference-mode weights have no version: only their storage, and `Denoiser.train`, count)."""
 
