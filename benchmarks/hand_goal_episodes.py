@@ -4,7 +4,7 @@ own pick-up episodes (not a timed test).
     python benchmarks/hand_goal_episodes.py ckpt=[PATH] split=val "scenes=[71,73,75,77,79]" pairs=1 k=2 ...
 
 Any `motiongen evaluate` keys: the evaluation runs as usual (its report goes to `out`), with the
-sampler's `hand_goals` and `run_episode` wrapped so that every episode given a hand goal
+sampler's `run_episode` wrapped so that every episode given a hand goal
 (`loop.hand_goal`, checkpoints trained with `mask.p_hand` or `mask.p_hand_action`) records, per
 sample, the distance from the network's own wrist (before the body) to the goal at the window's
 last frame (where the goal is given), its closest approach over the window, the same after

@@ -76,15 +76,17 @@ class ActionMemo:
             self.rows.clear()
             self.stamp = stamp
         keys = [r.tobytes() for r in actions.detach().to("cpu", torch.float32).numpy()]
-        missing = list(dict.fromkeys(k for k in keys if k not in self.rows))
+        first: dict[bytes, int] = {}                                          # each distinct window's first row
+        for i, k in enumerate(keys):
+            first.setdefault(k, i)
+        missing = [k for k in first if k not in self.rows]
         if missing:
-            first = {k: i for i, k in reversed(list(enumerate(keys)))}
             pooled, frames = enc(actions[[first[k] for k in missing]])        # (M, W), (M, L, W) | None
             for i, k in enumerate(missing):
                 self.rows[k] = (pooled[i], None if frames is None else frames[i])
-        for k in keys:
+        for k in first:
             self.rows.move_to_end(k)
-        while len(self.rows) > max(self.size, len(set(keys))):
+        while len(self.rows) > max(self.size, len(first)):
             self.rows.popitem(last=False)
         pooled = torch.stack([self.rows[k][0] for k in keys])                  # (B, W)
         frames = None if enc.out_frames is None else torch.stack([self.rows[k][1] for k in keys])
