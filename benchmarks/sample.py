@@ -22,6 +22,13 @@ the issue-27 figure is
 
 `stride=2 length=24` gives the model 15 fps windows of the same 1.6 s (the demo's and quality
 recipe's rate), which also sets the rate-dependent clean-up (seam blend, the solve's weights).
+Ceiling: before the rows, what the network's linear layers alone allow on this host at batch
+1 (`_ceiling`): their multiply-adds for one window (counted by forward hooks on a one-step run:
+the scene encoder once, the denoiser once per step, the action encoder as memoised), timed
+back to back at the window's own shapes, against the seconds of motion a window adds. No
+sampler with that many steps can be faster than that bound, whatever else it saves; a
+row's real-time factor over it says how much of the time the rest (attention, norms, the
+body) takes.
 Quality: with `ckpt=` (a trained checkpoint, e.g. the demo), the goal-reaching error at the
 same step counts on a fixed goal route: pelvis and hips-midpoint error on arrival (both the
 body's own: goals are predicted, not pinned), plus how many goals were reached.
@@ -123,6 +130,47 @@ def _speed_row(a: dict, sampler: str, steps: int, batch: int, prec: str, solve: 
              resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
 
 
+def _ceiling(loaded, steps: list[int], episodes: int) -> None:
+    """Print the real-time factor the network's linear layers alone allow at batch 1 in fp32
+    for each step count: a one-step run of the rows' walk (`episodes` windows, no body) counts
+    each layer's multiply-adds and input shape per window (forward hooks), then those layers
+    are timed back to back."""
+    calls = []                                                   # (name, input (M, K), weight (N, K))
+    hooks = [mod.register_forward_hook(lambda m, i, o, name=name: calls.append((name, i[0].reshape(-1, m.in_features).shape[0], m.weight)))
+             for name, mod in loaded.model.named_modules() if isinstance(mod, torch.nn.Linear)]
+    walk, _ = plan_scene_route((0, 0), [Goal([0, 100.0])], loaded.action_names, path="straight")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = generate(loaded, route=walk, sampler=SamplerSettings("ddim", 1), body_model=None,
+                     loop=LoopConfig(warmup=1, max_episodes=episodes - 1, project=False, solve="joint-space"),
+                     generator=torch.Generator().manual_seed(0))
+    for h in hooks:
+        h.remove()
+    windows = len(m.episode_starts)
+    per_step = [c for c in calls if not c[0].startswith(("scene_encoder.", "action_encoder."))]
+    once = [c for c in calls if c[0].startswith(("scene_encoder.", "action_encoder."))]
+
+    def seconds(cs):                                             # the layers back to back, best of 5
+        xs = [(torch.randn(M, w.shape[1]), w.float()) for _, M, w in cs]
+        best = float("inf")
+        for _ in range(5):
+            t = time.perf_counter()
+            with torch.inference_mode():
+                for x, w in xs:
+                    torch.nn.functional.linear(x, w)
+            best = min(best, time.perf_counter() - t)
+        return best / windows
+
+    flops = [sum(2 * M * w.numel() for _, M, w in cs) / windows for cs in (once, per_step)]
+    t_once, t_step = seconds(once), seconds(per_step)
+    motion = m.duration / windows
+    print(f"ceiling at batch 1, fp32, linear layers only: {motion:.2f} s of motion per window; encoders "
+          f"{flops[0] / 1e9:.2f} GFLOP in {1e3 * t_once:.1f} ms, each denoising step {flops[1] / 1e9:.2f} GFLOP in "
+          f"{1e3 * t_step:.1f} ms ({(flops[0] + flops[1]) / (t_once + t_step) / 1e9:.0f} GFLOP/s)")
+    print("  at most " + ", ".join(f"{motion / (t_once + n * t_step):.1f}x real time for {n} step{'s' * (n > 1)}"
+                                   for n in steps))
+
+
 def _time_body() -> list:
     """Seconds spent in the per-episode projection and the final solve, summed into the
     returned one-element list (the two functions wrapped where the sampler looks them up)."""
@@ -157,8 +205,10 @@ def main(argv):
     print(f"speed: preset={a['preset']}, {30.0 / int(a['stride']):g} fps windows of {a['length']} frames, "
           f"{a['threads']} threads, {a['episodes']} episodes per run, "
           f"body projection + solve {'on' if a['project'] == 'true' else 'off'}, one child process per row")
-    print(f"precision=auto (the default) uses {resolve_precision(_random_loaded(a['preset'], int(a['stride']), int(a['length'])).model, 'auto')} "
-          "for this model")
+    torch.set_num_threads(int(a["threads"]))
+    loaded = _random_loaded(a["preset"], int(a["stride"]), int(a["length"]))
+    print(f"precision=auto (the default) uses {resolve_precision(loaded.model, 'auto')} for this model")
+    _ceiling(loaded, [n for _, n in _samplers(a["samplers"])], int(a["episodes"]))
     print(f"{'sampler':>10} {'batch':>5} {'precision':>9} {'solve':>11} {'memo':>4} {'motion s':>9} {'wall s':>7} {'RTF':>6} "
           f"{'frames/s':>8} {'x first':>7} {'body %':>6} {'peak MiB':>8}")
     ctx = multiprocessing.get_context("spawn")

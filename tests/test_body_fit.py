@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 import torch
 
-from motiongen.body.analytic import analytic_init
+from motiongen.body.analytic import analytic_init, posed_joints, swing
 from motiongen.body.fit import FitResult, RefineConfig, fit_joints, refine, save_amass_npz
 from motiongen.body.mlp import JointsToBodyMLP, MLPConfig, canonicalise, triplets
+from motiongen.body.model import forward_kinematics
 from motiongen.body.random_motion import joint_limits, sample_motion
 from motiongen.body.rotations import axis_angle_to_matrix, geodesic_angle, matrix_to_axis_angle
 from motiongen.errors import ConfigError
@@ -107,6 +108,21 @@ def test_analytic_init_points_bones_at_targets(bm):
     R = analytic_init(X, bm.rest_joints(p["betas"]))
     J = bm.joints_from_rotmats(R, X[:, 0] - bm.rest_joints(p["betas"])[0], p["betas"])
     assert (J - X).norm(dim=-1).max() < 1e-4                       # exact with the true shape
+
+
+def test_swing_and_its_numpy_kinematics_agree_with_forward_kinematics(bm):
+    # The sampler's projection stays in numpy between its two swings: its posed joints must be
+    # forward kinematics' joints of the same rotations (float64 both ways), and on a body's own
+    # motion they are the targets themselves.
+    X, p = _motion(bm, 12, seed=8)
+    rest = bm.rest_joints(p["betas"]).double()
+    X64 = X.double().numpy() - X[:, :1].double().numpy() + rest[0].numpy()                 # root at rest[0]
+    R, G = swing(X64, np.broadcast_to(rest.numpy(), X64.shape))
+    P = posed_joints(G, np.broadcast_to(rest.numpy(), X64.shape))
+    P_fk, G_fk = forward_kinematics(torch.from_numpy(R), rest, bm.parents, bm._levels)
+    np.testing.assert_allclose(P, P_fk.numpy(), atol=1e-12)
+    np.testing.assert_allclose(G, G_fk.numpy(), atol=1e-12)
+    assert np.abs(P - X64).max() < 1e-4                                                   # exact with the true shape
 
 
 def test_known_betas_contact_and_adam(bm):

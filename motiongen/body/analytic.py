@@ -31,6 +31,11 @@ for _d in range(max(_depth(j) for j in range(NUM_BODY_JOINTS)) + 1):
     _LEVELS.append(([j for j in _js if len(_CHILDREN[j]) == 1], [j for j in _js if len(_CHILDREN[j]) > 1],
                     [j for j in _js if not _CHILDREN[j]]))
 _ONE_CHILD = {j: _CHILDREN[j][0] for j in range(NUM_BODY_JOINTS) if len(_CHILDREN[j]) == 1}
+_PARENT_OR_ROOT = np.array([max(p, 0) for p in BODY_PARENTS])
+# Below the root, level by level: (joints, their parents).
+_FK_LEVELS = [([j for j in range(NUM_BODY_JOINTS) if _depth(j) == d],
+               [BODY_PARENTS[j] for j in range(NUM_BODY_JOINTS) if _depth(j) == d])
+              for d in range(1, max(_depth(j) for j in range(NUM_BODY_JOINTS)) + 1)]
 
 
 def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -53,21 +58,33 @@ def _skew(v: np.ndarray) -> np.ndarray:
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+    return v / np.maximum(np.sqrt((v * v).sum(-1, keepdims=True)), 1e-12)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b for (..., 3) arrays: `np.cross` costs several times more on the few dozen vectors
+    a window has (it moves axes around first), and the projection calls it per tree level."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -1)
 
 
 def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Smallest rotation (..., 3, 3) taking direction a to direction b (..., 3)."""
+    """Smallest rotation (..., 3, 3) taking direction a to direction b (..., 3): with v = a × b
+    and c = a · b, R = c I + [v]× + v vᵀ / (1 + c) (Rodrigues' formula, [v]×² = v vᵀ − |v|² I)."""
     a, b = _unit(a), _unit(b)
     c = (a * b).sum(-1)[..., None, None]
-    K = _skew(np.cross(a, b))
-    R = np.eye(3) + K + K @ K / np.maximum(1 + c, 1e-6)
+    v = _cross(a, b)
+    R = c * np.eye(3) + _skew(v) + v[..., :, None] * v[..., None, :] / np.maximum(1 + c, 1e-6)
+    flip = 1 + c < 1e-3
+    if not flip.any():
+        return R
     # Opposite directions: the formula divides by ~0; turn half-way round any axis normal to a.
     # (A target can point anywhere: an untrained network's bones do.)
     other = np.where(np.abs(a[..., :1]) < 0.9, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
-    n = _unit(np.cross(a, other))
+    n = _unit(_cross(a, other))
     half_turn = 2 * n[..., :, None] * n[..., None, :] - np.eye(3)
-    return np.where(1 + c < 1e-3, half_turn, R)
+    return np.where(flip, half_turn, R)
 
 
 def _orthonormal(R: np.ndarray) -> np.ndarray:
@@ -77,7 +94,7 @@ def _orthonormal(R: np.ndarray) -> np.ndarray:
     b1 = _unit(R[..., :, 0])
     a2 = R[..., :, 1]
     b2 = _unit(a2 - (b1 * a2).sum(-1, keepdims=True) * b1)
-    return np.stack([b1, b2, np.cross(b1, b2)], -1)
+    return np.stack([b1, b2, _cross(b1, b2)], -1)
 
 
 def analytic_init(joints: torch.Tensor, rest: torch.Tensor, rot_init: torch.Tensor | None = None) -> torch.Tensor:
@@ -93,9 +110,16 @@ def analytic_init(joints: torch.Tensor, rest: torch.Tensor, rot_init: torch.Tens
     `rot_init` (none without it); leaves keep their initial local rotation.
     """
     X = joints.detach().cpu().double().numpy()                                  # (T, 22, 3)
-    rest_np = rest.detach().cpu().double().numpy()
-    rest_np = np.broadcast_to(rest_np, X.shape)                                 # (T, 22, 3)
+    rest_np = np.broadcast_to(rest.detach().cpu().double().numpy(), X.shape)    # (T, 22, 3)
     init = None if rot_init is None else rot_init.detach().cpu().double().numpy()
+    R, _ = swing(X, rest_np, init)
+    return torch.from_numpy(R).to(device=joints.device, dtype=joints.dtype)
+
+
+def swing(X: np.ndarray, rest: np.ndarray, init: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """`analytic_init` in float64 numpy: joints X (T, 22, 3), rest joints (T, 22, 3), local
+    rotations init (T, 22, 3, 3) or None -> (local rotations, global rotations), each
+    (T, 22, 3, 3). The sampler's projection stays in numpy between its steps (`posed_joints`)."""
     T = X.shape[0]
     G = np.empty((T, NUM_BODY_JOINTS, 3, 3))                                    # global rotations
     for one, many, leaves in _LEVELS:
@@ -105,17 +129,28 @@ def analytic_init(joints: torch.Tensor, rest: torch.Tensor, rot_init: torch.Tens
         Gc = Gp @ init[:, js] if init is not None else Gp.copy()                # candidates (T, n, 3, 3)
         if one:
             kid = [_ONE_CHILD[j] for j in one]
-            a = (Gc[:, :len(one)] @ (rest_np[:, kid] - rest_np[:, one])[..., None])[..., 0]     # (T, n1, 3)
+            a = (Gc[:, :len(one)] @ (rest[:, kid] - rest[:, one])[..., None])[..., 0]      # (T, n1, 3)
             Gc[:, :len(one)] = _orthonormal(_min_rotation(a, X[:, kid] - X[:, one]) @ Gc[:, :len(one)])
         for i, j in enumerate(many, start=len(one)):
             kids = _CHILDREN[j]
-            a = ((rest_np[:, kids] - rest_np[:, j:j + 1]) @ Gc[:, i].transpose(0, 2, 1))      # (T, K, 3)
+            a = (rest[:, kids] - rest[:, j:j + 1]) @ Gc[:, i].transpose(0, 2, 1)      # (T, K, 3)
             Gc[:, i] = _orthonormal(_kabsch(a, X[:, kids] - X[:, j:j + 1]) @ Gc[:, i])
         G[:, js] = Gc
-    par = np.array([max(p, 0) for p in BODY_PARENTS])
-    R = G[:, par].transpose(0, 1, 3, 2) @ G                                      # local = Gpᵀ G
+    R = G[:, _PARENT_OR_ROOT].transpose(0, 1, 3, 2) @ G                       # local = Gpᵀ G
     R[:, 0] = G[:, 0]
-    return torch.from_numpy(R).to(device=joints.device, dtype=joints.dtype)
+    return R, G
+
+
+def posed_joints(G: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """Forward kinematics from global rotations: G (T, 22, 3, 3), rest joints (T, 22, 3) ->
+    joints (T, 22, 3) with the root at rest[0] (`body.model.forward_kinematics`'s positions,
+    one numpy step per tree level: on a window's few dozen frames torch's per-op cost is most
+    of the time)."""
+    P = np.empty_like(rest)
+    P[:, 0] = rest[:, 0]
+    for js, par in _FK_LEVELS:
+        P[:, js] = P[:, par] + (G[:, par] @ (rest[:, js] - rest[:, par])[..., None])[..., 0]
+    return P
 
 
 def smooth_rotations(R: torch.Tensor, sigma: float) -> torch.Tensor:

@@ -85,8 +85,7 @@ def solve_joints(X: np.ndarray, cfg: RefineConfig, planted: np.ndarray | None = 
         np.add.at(rhs, (jj, slice(None), f), w[:, None] * p)
     # Horizontal coordinates: no one-sided terms, solved once.
     Y = np.empty((T, J, 3))
-    for j in range(J):
-        Y[:, j, [0, 2]] = _solve(bases[j], diag[j], locks.get(j), rhs[j, [0, 2]].T)
+    Y[:, :, [0, 2]] = _solve_joints(range(J), bases, diag, locks, rhs[:, [0, 2]].transpose(0, 2, 1)).transpose(1, 0, 2)
     # Heights: the floor and the swinging feet's clearance are one-sided (active where violated).
     bound_w = np.zeros((J, T))
     bound_y = np.zeros((J, T))
@@ -105,11 +104,11 @@ def solve_joints(X: np.ndarray, cfg: RefineConfig, planted: np.ndarray | None = 
     # Semismooth Newton on the hinges: each solve's violated entries are the next one's active
     # set; only the joints whose set changed are solved again.
     for _ in range(ACTIVE_SET_ROUNDS):
-        for j in todo:
-            fw = np.where(floor_on[j], bound_w[j], 0.0)
-            sw = np.where(swing_on[j], swing_w[j], 0.0)
-            b = rhs[j, 1] + fw * bound_y[j] + sw * X[:, j, 1]
-            Y[:, j, 1] = _solve(bases[j], diag[j] + fw + sw, locks.get(j), b[:, None])[:, 0]
+        fw = np.where(floor_on, bound_w, 0.0)                                           # (J, T)
+        sw = np.where(swing_on, swing_w, 0.0)
+        b = rhs[:, 1] + fw * bound_y + sw * X[:, :, 1].T                                    # (J, T)
+        todo = list(todo)
+        Y[:, todo, 1] = _solve_joints(todo, bases, diag + fw + sw, locks, b[:, :, None])[..., 0].T
         new_floor = (Y[:, :, 1].T < bound_y) & (bound_w > 0)
         new_swing = (Y[:, :, 1].T < X[:, :, 1].T) & (swing_w > 0)
         todo = np.nonzero((new_floor != floor_on).any(1) | (new_swing != swing_on).any(1))[0]
@@ -127,6 +126,25 @@ def _dtd_banded(T: int) -> np.ndarray:
         for b in range(a, 3):
             ab[b - a, a:a + T - 2] += c[a] * c[b]
     return ab
+
+
+def _solve_joints(joints, bases, diag: np.ndarray, locks: dict, b: np.ndarray) -> np.ndarray:
+    """x (len(joints), T, m) of `_solve` for each joint j of `joints` (bases[j], diag (J, T),
+    locks.get(j), right-hand sides b (J, T, m)). Joints without a lock whose systems are equal
+    (most: no reach, no active bound) share one factorisation."""
+    out = np.empty((len(joints), b.shape[1], b.shape[2]))
+    groups: dict = {}
+    for i, j in enumerate(joints):
+        if j in locks:
+            out[i] = _solve(bases[j], diag[j], locks[j], b[j])
+        else:
+            groups.setdefault((id(bases[j]), diag[j].tobytes()), []).append(i)
+    for rows in groups.values():
+        j0 = joints[rows[0]]
+        js = [joints[i] for i in rows]
+        x = _solve(bases[j0], diag[j0], None, np.concatenate(list(b[js]), 1))             # (T, m·k)
+        out[rows] = np.stack(np.split(x, len(rows), 1))
+    return out
 
 
 def _solve(base: np.ndarray, diag: np.ndarray, lock, b: np.ndarray) -> np.ndarray:

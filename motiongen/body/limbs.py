@@ -45,12 +45,15 @@ def two_bone(root: Tensor, target: Tensor, pole: Tensor, upper: Tensor, lower: T
     h = (upper ** 2 - x ** 2).clamp(min=0).sqrt()                                          # off the line
     p = pole - root
     v = p - (p * u).sum(-1, keepdim=True) * u
-    # A straight prediction gives no bending plane: any normal will do, the bend is ~0 there.
-    fallback = torch.cross(u, torch.tensor([1.0, 0.0, 0.0], dtype=u.dtype).expand_as(u), dim=-1)
-    fallback2 = torch.cross(u, torch.tensor([0.0, 0.0, 1.0], dtype=u.dtype).expand_as(u), dim=-1)
-    fallback = torch.where(fallback.norm(dim=-1, keepdim=True) > 1e-3, fallback, fallback2)
-    v = torch.where(v.norm(dim=-1, keepdim=True) > 1e-6, v, fallback)
-    v = v / v.norm(dim=-1, keepdim=True).clamp(min=1e-9)
+    v_len = v.norm(dim=-1, keepdim=True)
+    if not bool((v_len > 1e-6).all()):
+        # A straight prediction gives no bending plane: any normal will do, the bend is ~0 there.
+        fallback = torch.cross(u, torch.tensor([1.0, 0.0, 0.0], dtype=u.dtype).expand_as(u), dim=-1)
+        fallback2 = torch.cross(u, torch.tensor([0.0, 0.0, 1.0], dtype=u.dtype).expand_as(u), dim=-1)
+        fallback = torch.where(fallback.norm(dim=-1, keepdim=True) > 1e-3, fallback, fallback2)
+        v = torch.where(v_len > 1e-6, v, fallback)
+        v_len = v.norm(dim=-1, keepdim=True)
+    v = v / v_len.clamp(min=1e-9)
     middle = root + x[..., None] * u + h[..., None] * v
     return middle, root + d[..., None] * u
 

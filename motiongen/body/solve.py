@@ -29,7 +29,7 @@ import torch
 from scipy.ndimage import gaussian_filter1d
 from scipy.optimize import least_squares
 
-from motiongen.body.analytic import analytic_init
+from motiongen.body.analytic import posed_joints, swing
 from motiongen.body.fit import FitResult, RefineConfig, refine
 from motiongen.body.joint_solve import held_limbs, into_reach, solve_joints
 from motiongen.body.limbs import limb_lengths, place_limbs
@@ -142,19 +142,31 @@ class MotionBody:
         X = torch.as_tensor(np.asarray(joints[..., :J22, :]), dtype=self.rest.dtype).reshape(S * T, J22, 3)
         rest = self.rest[:, None].expand(S, T, J22, 3).reshape(S * T, J22, 3)
         hint = None if rot_hint is None else rot_hint[:, None].expand(S, T, J22, 3, 3).reshape(-1, J22, 3, 3)
-        R = self._rotations(X, rest, hint).reshape(S, T, J22, 3, 3)
+        R, P = self._rotations(X, rest, hint, with_joints=True)
+        R = R.reshape(S, T, J22, 3, 3)
         transl = X.reshape(S, T, J22, 3)[:, :, 0] - self.rest[:, None, 0]                       # (S, T, 3)
-        return self.pose(R, transl).double().numpy(), R, transl
+        if self.extras:
+            return self.pose(R, transl).double().numpy(), R, transl
+        # The trunk's and limbs' joints as the last swing placed them (float64, as `pose` would
+        # give them up to float32 rounding), without running forward kinematics again.
+        return P.reshape(S, T, J22, 3) + transl.double().numpy()[:, :, None], R, transl
 
     def _rotations(self, X: torch.Tensor, rest: torch.Tensor, hint: torch.Tensor | None,
-                   bend: torch.Tensor | None = None, soft: float = 0.0) -> torch.Tensor:
+                   bend: torch.Tensor | None = None, soft: float = 0.0, with_joints: bool = False):
         """Local rotations (N, 22, 3, 3) putting rest joints (N, 22, 3) on joints X (N, 22, 3)
         (`project`): bone directions, then the limbs' ends by two-bone IK (bending as `bend`
-        (N, 22, 3) bends, or X); twist from hint."""
-        R = analytic_init(X, rest, hint)                                                       # (N, 22, 3, 3)
-        P, _ = forward_kinematics(R, rest, self.bm.parents, self.bm._levels, with_rotations=False)
-        P = place_limbs(P + (X[:, :1] - rest[:, :1]), X, rest, bend, soft)                     # (N, 22, 3)
-        return analytic_init(P, rest, R)                                                       # exact: lengths agree
+        (N, 22, 3) bends, or X); twist from hint. with_joints: also the posed joints (N, 22, 3)
+        float64 numpy, root at rest[0]. The steps between the two swings stay in float64 numpy
+        (`analytic.swing`, `analytic.posed_joints`): on a window's few dozen frames the cost is
+        the number of small operations, which torch makes several times dearer."""
+        rest_np = rest.double().numpy()
+        X_np = X.detach().double().numpy()
+        R, G = swing(X_np, rest_np, None if hint is None else hint.double().numpy())
+        P = torch.from_numpy(posed_joints(G, rest_np) + (X_np[:, :1] - rest_np[:, :1])).to(X.dtype)
+        P = place_limbs(P, X, rest, bend, soft)                                                # (N, 22, 3)
+        R, G = swing(P.double().numpy(), rest_np, R)                                           # exact: lengths agree
+        R = torch.from_numpy(R).to(X.dtype)
+        return (R, posed_joints(G, rest_np)) if with_joints else R
 
     def solve_joint_space(self, sample: int, joints: np.ndarray, rot_hint: torch.Tensor,
                           planted: np.ndarray | None = None, contact_joints=(), cfg: RefineConfig | None = None,
