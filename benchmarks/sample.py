@@ -36,6 +36,7 @@ body's own: goals are predicted, not pinned), plus how many goals were reached.
 
 from __future__ import annotations
 
+import functools
 import multiprocessing
 import resource
 import sys
@@ -135,8 +136,12 @@ def _ceiling(loaded, steps: list[int], episodes: int) -> None:
     for each step count: a one-step run of the rows' walk (`episodes` windows, no body) counts
     each layer's multiply-adds and input shape per window (forward hooks), then those layers
     are timed back to back."""
-    calls = []                                                   # (name, input (M, K), weight (N, K))
-    hooks = [mod.register_forward_hook(lambda m, i, o, name=name: calls.append((name, i[0].reshape(-1, m.in_features).shape[0], m.weight)))
+    calls = []                                                   # (name, rows M of the input, weight (N, K))
+
+    def hook(mod, inputs, _, name):
+        calls.append((name, inputs[0].numel() // mod.in_features, mod.weight))
+
+    hooks = [mod.register_forward_hook(functools.partial(hook, name=name))
              for name, mod in loaded.model.named_modules() if isinstance(mod, torch.nn.Linear)]
     walk, _ = plan_scene_route((0, 0), [Goal([0, 100.0])], loaded.action_names, path="straight")
     with warnings.catch_warnings():

@@ -53,7 +53,7 @@ def forward_kinematics(rotmats: torch.Tensor, rest: torch.Tensor, parents, level
     order = [j for js, _ in (levels if levels is not None else _levels(parents)) for j in js]
     par = torch.as_tensor(parents[1:], device=rest.device)
     offsets = torch.cat([rest[..., :1, :], rest[..., 1:, :] - rest[..., par, :]], -2)  # (..., J, 3)
-    # numpy's, not torch's: torch.broadcast_shapes imports sympy on its first call (~0.3 s).
+    # numpy's, not torch's: torch.broadcast_shapes imports sympy on its first call (0.3–0.7 s, 35 MiB).
     batch = np.broadcast_shapes(rotmats.shape[:-3], offsets.shape[:-2])
     R = rotmats.expand(batch + rotmats.shape[-3:]).unbind(-3)
     O = offsets.expand(batch + offsets.shape[-2:]).unbind(-2)

@@ -183,10 +183,10 @@ class MotionBody:
         Y = into_reach(Y, lengths, held_limbs(T, reach), TRUNK_SHIFT_SMOOTHING)
         Yt = torch.as_tensor(Y, dtype=self.rest.dtype)
         bend = torch.as_tensor(gaussian_filter1d(X, BEND_SMOOTHING, axis=0, mode="nearest"), dtype=Yt.dtype)
-        R = self._rotations(Yt, self.rest[sample].expand(T, NUM_BODY_JOINTS, 3), rot_hint.to(Yt.dtype), bend,
-                            SOFT_REACH)
+        R, P = self._rotations(Yt, self.rest[sample].expand(T, NUM_BODY_JOINTS, 3), rot_hint.to(Yt.dtype), bend,
+                               SOFT_REACH, with_joints=True)
         transl = Yt[:, 0] - self.rest[sample, 0]
-        return self._motion(sample, R, transl)
+        return self._motion(sample, R, transl, None if self.extras else P + transl.double().numpy()[:, None])
 
     def solve(self, sample: int, joints: np.ndarray, rot_init: torch.Tensor, planted: np.ndarray | None = None,
               contact_joints=(), cfg: RefineConfig | None = None, reach=None) -> BodyMotion:
@@ -209,12 +209,14 @@ class MotionBody:
                                     contact_joints=tuple(contact_joints), reach=reach)
         return self._motion(sample, R, transl)
 
-    def _motion(self, sample: int, R: torch.Tensor, transl: torch.Tensor) -> BodyMotion:
-        """The BodyMotion of sample's body posed by local rotations (T, 22, 3, 3), translations (T, 3)."""
+    def _motion(self, sample: int, R: torch.Tensor, transl: torch.Tensor, joints: np.ndarray | None = None) -> BodyMotion:
+        """The BodyMotion of sample's body posed by local rotations (T, 22, 3, 3), translations
+        (T, 3); joints (T, J, 3): those rotations' joints where the caller has them already."""
         with torch.no_grad():
-            J = self.pose(R[None], transl[None], slice(sample, sample + 1))[0]                   # (T, J, 3)
+            if joints is None:
+                joints = self.pose(R[None], transl[None], slice(sample, sample + 1))[0]          # (T, J, 3)
             aa = matrix_to_axis_angle(R)                                                       # (T, 22, 3)
         T = R.shape[0]
         return BodyMotion(global_orient=aa[:, 0].numpy(), body_pose=aa[:, 1:].reshape(T, 63).numpy(),
-                          transl=transl.numpy(), betas=self.betas[sample].numpy(), joints=J.numpy().astype(np.float32),
+                          transl=transl.numpy(), betas=self.betas[sample].numpy(), joints=np.asarray(joints, np.float32),
                           rotmats=R.numpy())
