@@ -142,11 +142,13 @@ class MotionBody:
         X = torch.as_tensor(np.asarray(joints[..., :J22, :]), dtype=self.rest.dtype).reshape(S * T, J22, 3)
         rest = self.rest[:, None].expand(S, T, J22, 3).reshape(S * T, J22, 3)
         hint = None if rot_hint is None else rot_hint[:, None].expand(S, T, J22, 3, 3).reshape(-1, J22, 3, 3)
+        if self.extras:                          # joints beyond the 22 need `pose`'s global rotations
+            R = self._rotations(X, rest, hint).reshape(S, T, J22, 3, 3)
+            transl = X.reshape(S, T, J22, 3)[:, :, 0] - self.rest[:, None, 0]                   # (S, T, 3)
+            return self.pose(R, transl).double().numpy(), R, transl
         R, P = self._rotations(X, rest, hint, with_joints=True)
         R = R.reshape(S, T, J22, 3, 3)
         transl = X.reshape(S, T, J22, 3)[:, :, 0] - self.rest[:, None, 0]                       # (S, T, 3)
-        if self.extras:
-            return self.pose(R, transl).double().numpy(), R, transl
         # The trunk's and limbs' joints as the last swing placed them (float64, as `pose` would
         # give them up to float32 rounding), without running forward kinematics again.
         return P.reshape(S, T, J22, 3) + transl.double().numpy()[:, :, None], R, transl
