@@ -152,8 +152,9 @@ def _ceiling(loaded, steps: list[int], episodes: int) -> None:
     for h in hooks:
         h.remove()
     windows = len(m.episode_starts)
-    per_step = [c for c in calls if not c[0].startswith(("scene_encoder.", "action_encoder."))]
-    once = [c for c in calls if c[0].startswith(("scene_encoder.", "action_encoder."))]
+    encoders = [c[0].startswith(("scene_encoder.", "action_encoder.")) for c in calls]
+    once = [c for c, e in zip(calls, encoders) if e]
+    per_step = [c for c, e in zip(calls, encoders) if not e]
 
     def seconds(cs):                                             # the layers back to back, best of 5
         xs = [(torch.randn(M, w.shape[1]), w.float()) for _, M, w in cs]

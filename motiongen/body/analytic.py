@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from motiongen.body.model import tree_levels
 from motiongen.body.rotations import matrix_to_rot6d, rot6d_to_matrix
 from motiongen.skeleton import BODY_PARENTS, NUM_BODY_JOINTS
 
@@ -32,10 +33,7 @@ for _d in range(max(_depth(j) for j in range(NUM_BODY_JOINTS)) + 1):
                     [j for j in _js if not _CHILDREN[j]]))
 _ONE_CHILD = {j: _CHILDREN[j][0] for j in range(NUM_BODY_JOINTS) if len(_CHILDREN[j]) == 1}
 _PARENT_OR_ROOT = np.array([max(p, 0) for p in BODY_PARENTS])
-# Below the root, level by level: (joints, their parents).
-_FK_LEVELS = [([j for j in range(NUM_BODY_JOINTS) if _depth(j) == d],
-               [BODY_PARENTS[j] for j in range(NUM_BODY_JOINTS) if _depth(j) == d])
-              for d in range(1, max(_depth(j) for j in range(NUM_BODY_JOINTS)) + 1)]
+_FK_LEVELS = tree_levels(BODY_PARENTS)                                      # [(joints, their parents)] below the root
 
 
 def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:

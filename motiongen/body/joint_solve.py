@@ -140,9 +140,8 @@ def _solve_joints(joints, bases, diag: np.ndarray, locks: dict, b: np.ndarray) -
         else:
             groups.setdefault((id(bases[j]), diag[j].tobytes()), []).append(i)
     for rows in groups.values():
-        j0 = joints[rows[0]]
         js = [joints[i] for i in rows]
-        x = _solve(bases[j0], diag[j0], None, np.concatenate(list(b[js]), 1))             # (T, m·k)
+        x = _solve(bases[js[0]], diag[js[0]], None, np.concatenate(list(b[js]), 1))       # (T, m·k)
         out[rows] = np.stack(np.split(x, len(rows), 1))
     return out
 

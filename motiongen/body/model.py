@@ -28,7 +28,7 @@ MODEL_ENV = "MOTIONGEN_SMPLX_MODEL"
 _REQUIRED = ("v_template", "shapedirs", "J_regressor", "kintree_table", "weights", "posedirs", "f")
 
 
-def _levels(parents) -> list[tuple[list[int], list[int]]]:
+def tree_levels(parents) -> list[tuple[list[int], list[int]]]:
     """Joints grouped by tree depth (root excluded): [(joints, their parents), ...].
     One batched step per level instead of one per joint."""
     depth = [0] * len(parents)
@@ -50,7 +50,7 @@ def forward_kinematics(rotmats: torch.Tensor, rest: torch.Tensor, parents, level
     """
     # One small matmul per joint on (..., 3, 3) slices: measured faster on CPU than batching
     # by tree level (gathers/scatters cost more than they save at J = 22..55).
-    order = [j for js, _ in (levels if levels is not None else _levels(parents)) for j in js]
+    order = [j for js, _ in (levels if levels is not None else tree_levels(parents)) for j in js]
     par = torch.as_tensor(parents[1:], device=rest.device)
     offsets = torch.cat([rest[..., :1, :], rest[..., 1:, :] - rest[..., par, :]], -2)  # (..., J, 3)
     # numpy's, not torch's: torch.broadcast_shapes imports sympy on its first call (0.3–0.7 s, 35 MiB).
@@ -100,8 +100,8 @@ class BodyModel(torch.nn.Module):
             raise DataError(self.path, "kintree_table", "the first 22 joints do not have the SMPL-X body topology")
         self.full_parents = tuple(int(p) for p in parents)
         self.parents = BODY_PARENTS
-        self._levels = _levels(self.parents)
-        self._full_levels = _levels(self.full_parents)
+        self._levels = tree_levels(self.parents)
+        self._full_levels = tree_levels(self.full_parents)
         Jreg = np.asarray(data["J_regressor"].todense() if hasattr(data["J_regressor"], "todense") else data["J_regressor"],
                           dtype=np.float64)             # (55, V)
         self.num_vertices = data["v_template"].shape[0]

@@ -142,23 +142,21 @@ class MotionBody:
         X = torch.as_tensor(np.asarray(joints[..., :J22, :]), dtype=self.rest.dtype).reshape(S * T, J22, 3)
         rest = self.rest[:, None].expand(S, T, J22, 3).reshape(S * T, J22, 3)
         hint = None if rot_hint is None else rot_hint[:, None].expand(S, T, J22, 3, 3).reshape(-1, J22, 3, 3)
-        if self.extras:                          # joints beyond the 22 need `pose`'s global rotations
-            R = self._rotations(X, rest, hint).reshape(S, T, J22, 3, 3)
-            transl = X.reshape(S, T, J22, 3)[:, :, 0] - self.rest[:, None, 0]                   # (S, T, 3)
-            return self.pose(R, transl).double().numpy(), R, transl
-        R, P = self._rotations(X, rest, hint, with_joints=True)
+        R, P = self._rotations(X, rest, hint)
         R = R.reshape(S, T, J22, 3, 3)
         transl = X.reshape(S, T, J22, 3)[:, :, 0] - self.rest[:, None, 0]                       # (S, T, 3)
-        # The trunk's and limbs' joints as the last swing placed them (float64, as `pose` would
-        # give them up to float32 rounding), without running forward kinematics again.
+        if P is None:
+            return self.pose(R, transl).double().numpy(), R, transl
+        # The joints as the last swing placed them (float64, as `pose` would give them up to
+        # float32 rounding), without running forward kinematics again.
         return P.reshape(S, T, J22, 3) + transl.double().numpy()[:, :, None], R, transl
 
     def _rotations(self, X: torch.Tensor, rest: torch.Tensor, hint: torch.Tensor | None,
-                   bend: torch.Tensor | None = None, soft: float = 0.0, with_joints: bool = False):
+                   bend: torch.Tensor | None = None, soft: float = 0.0):
         """Local rotations (N, 22, 3, 3) putting rest joints (N, 22, 3) on joints X (N, 22, 3)
         (`project`): bone directions, then the limbs' ends by two-bone IK (bending as `bend`
-        (N, 22, 3) bends, or X); twist from hint. with_joints: also the posed joints (N, 22, 3)
-        float64 numpy, root at rest[0]. The steps between the two swings stay in float64 numpy
+        (N, 22, 3) bends, or X); twist from hint. Also their joints (N, 22, 3) float64 numpy,
+        root at rest[0], or None for a joint set with extra joints (those need `pose`). The steps between the two swings stay in float64 numpy
         (`analytic.swing`, `analytic.posed_joints`): on a window's few dozen frames the cost is
         the number of small operations, which torch makes several times dearer."""
         rest_np = rest.double().numpy()
@@ -168,7 +166,7 @@ class MotionBody:
         P = place_limbs(P, X, rest, bend, soft)                                                # (N, 22, 3)
         R, G = swing(P.double().numpy(), rest_np, R)                                           # exact: lengths agree
         R = torch.from_numpy(R).to(X.dtype)
-        return (R, posed_joints(G, rest_np)) if with_joints else R
+        return R, None if self.extras else posed_joints(G, rest_np)
 
     def solve_joint_space(self, sample: int, joints: np.ndarray, rot_hint: torch.Tensor,
                           planted: np.ndarray | None = None, contact_joints=(), cfg: RefineConfig | None = None,
@@ -186,9 +184,9 @@ class MotionBody:
         Yt = torch.as_tensor(Y, dtype=self.rest.dtype)
         bend = torch.as_tensor(gaussian_filter1d(X, BEND_SMOOTHING, axis=0, mode="nearest"), dtype=Yt.dtype)
         R, P = self._rotations(Yt, self.rest[sample].expand(T, NUM_BODY_JOINTS, 3), rot_hint.to(Yt.dtype), bend,
-                               SOFT_REACH, with_joints=True)
+                               SOFT_REACH)
         transl = Yt[:, 0] - self.rest[sample, 0]
-        return self._motion(sample, R, transl, None if self.extras else P + transl.double().numpy()[:, None])
+        return self._motion(sample, R, transl, None if P is None else P + transl.double().numpy()[:, None])
 
     def solve(self, sample: int, joints: np.ndarray, rot_init: torch.Tensor, planted: np.ndarray | None = None,
               contact_joints=(), cfg: RefineConfig | None = None, reach=None) -> BodyMotion:
