@@ -4,6 +4,9 @@ window's first 2 frames and its last-frame pelvis x, z, as the sampler gives the
 network's wrist at that frame is compared with it: the median miss with and without the hand
 goal, in the same run with the same noise. A network that follows the goal misses by little
 more than it misses the pelvis goal; one that ignores it misses by about as much as without.
+Also where the goal lies in the body's own frame at the window's first and last frames, and
+how far the body turns over the window: what `hand_goal_episodes.py` prints for the sampler's
+episodes, here for the data's.
 
     python benchmarks/hand_goal.py ckpt=PATH [split=val] [windows=120] [steps=10]
 """
@@ -18,6 +21,7 @@ from motiongen.data.windows import WindowDataset
 from motiongen.diffusion import sample
 from motiongen.diffusion.masks import MaskConfig, known_mask, replace_mask
 from motiongen.eval.evaluate_config import dataset_config
+from motiongen.geometry import body_frame_offset, facing_yaw
 from motiongen.importers.sources import open_dataset
 from motiongen.loading.build import acting_hands, load_model
 from motiongen.models import Condition
@@ -62,6 +66,26 @@ def run(argv: list[str]) -> None:
         pelvis = (pred[:, -1, 0, [0, 2]] - truth[:, -1, 0, [0, 2]]).norm(dim=-1)
         print(f"  hand goal {'given' if hand else 'not given':9s}: wrist misses it by {miss.median():.3f} m "
               f"(median), the pelvis goal (x, z) by {pelvis.median():.3f} m")
+    print_goal_geometry("the data", truth.numpy(), wrist.numpy(), truth[rows, -1, wrist].numpy())
+
+
+def print_goal_geometry(what: str, joints: np.ndarray, wrist: np.ndarray, goal: np.ndarray) -> None:
+    """Where the hand goals lie from the body: joints (N, L, J, 3) world, wrist (N,) the reaching
+    wrist, goal (N, 3) world. Forward, and sideways towards the reaching hand's own side
+    (negative: across the body), at the window's first and last frames; the body's turn."""
+    side = np.where(wrist == HAND_JOINTS[0], 1.0, -1.0)                                  # left wrist: +left
+    for name, f in (("first", 0), ("last", -1)):
+        off = body_frame_offset(joints[:, f], goal)                                       # (N, 3) left, up, fwd
+        print(f"  {what}, goal from the body at the window's {name} frame: forward "
+              f"{_quartiles(off[:, 2])}, towards the hand's side {_quartiles(off[:, 0] * side)}")
+    yaw = facing_yaw(joints[:, [0, -1]])                                                  # (N, 2)
+    turn = np.degrees(np.abs(np.angle(np.exp(1j * (yaw[:, 1] - yaw[:, 0])))))
+    print(f"  {what}, the body turns over the window by {_quartiles(turn, '°')}")
+
+
+def _quartiles(v: np.ndarray, unit: str = " m") -> str:
+    q = np.percentile(v, [25, 50, 75])
+    return f"{q[1]:.2f}{unit} ({q[0]:.2f} – {q[2]:.2f})"
 
 
 if __name__ == "__main__":

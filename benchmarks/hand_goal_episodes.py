@@ -8,7 +8,9 @@ sampler's `run_episode` wrapped so that every episode given a hand goal
 (`loop.hand_goal`, checkpoints trained with `mask.p_hand` or `mask.p_hand_action`) records, per
 sample, the distance from the network's own wrist (before the body) to the goal at the window's
 last frame (where the goal is given), its closest approach over the window, the same after
-the body projection, and at the window's first frame. Prints the medians and quartiles.
+the body projection, and at the window's first frame. Prints the medians and quartiles, and
+where the goal lies in the body's own frame and how far the body turns over the window
+(`hand_goal.py` prints the same for the data's windows that end in a pick-up).
 `benchmarks/hand_goal.py` measures the same on validation windows instead of sampled episodes.
 """
 
@@ -18,10 +20,13 @@ import sys
 
 import numpy as np
 
+from hand_goal import print_goal_geometry
+
 from motiongen.commands import evaluate_command
 from motiongen.sampling import autoregressive
 
 RECORDS: list[tuple[float, float, float, float]] = []
+GEOMETRY: list[tuple[np.ndarray, int, np.ndarray]] = []   # (network's joints (L, J, 3), wrist, goal (3,))
 
 
 def _recording(run_episode):
@@ -36,6 +41,7 @@ def _recording(run_episode):
             raw = np.linalg.norm(ep.raw[s, :, hand[s]] - goal, axis=-1)                      # (L,)
             body = np.linalg.norm(ep.window[s, :, hand[s]] - goal, axis=-1)                  # (L,)
             RECORDS.append((raw[-1], raw.min(), body[-1], raw[0]))
+            GEOMETRY.append((ep.raw[s], int(hand[s]), goal))
     return run
 
 
@@ -55,6 +61,8 @@ def main(argv) -> None:
                               "on the body at the goal frame", "at the window's first frame")):
         q = np.percentile(a[:, i], [25, 50, 75])
         print(f"{name:>34}: median {q[1]:.3f} m (quartiles {q[0]:.3f}, {q[2]:.3f})")
+    joints, wrist, goal = (np.stack(x) for x in zip(*GEOMETRY))
+    print_goal_geometry("the network", joints, wrist, goal)
 
 
 if __name__ == "__main__":
