@@ -4,9 +4,10 @@ window's first 2 frames and its last-frame pelvis x, z, as the sampler gives the
 network's wrist at that frame is compared with it: the median miss with and without the hand
 goal, in the same run with the same noise. A network that follows the goal misses by little
 more than it misses the pelvis goal; one that ignores it misses by about as much as without.
-Also where the goal lies in the body's own frame at the window's first and last frames, and
-how far the body turns over the window: what `hand_goal_episodes.py` prints for the sampler's
-episodes, here for the data's.
+Also where the goal lies in the body's own frame at the window's first and last frames, how
+far the body turns over the window, and how far off its direction of travel the walking body
+faces (the split's sequences at the model's rate): what `hand_goal_episodes.py` prints for the
+sampler's episodes, here for the data's.
 
     python benchmarks/hand_goal.py ckpt=PATH [split=val] [windows=120] [steps=10]
 """
@@ -25,7 +26,7 @@ from motiongen.geometry import body_frame_offset, facing_yaw
 from motiongen.importers.sources import open_dataset
 from motiongen.loading.build import acting_hands, load_model
 from motiongen.models import Condition
-from motiongen.skeleton import HAND_JOINTS
+from motiongen.skeleton import HAND_JOINTS, PELVIS
 
 SPEC = {"ckpt": (str, None), "split": (str, "val"), "windows": (int, 120), "steps": (int, 10)}
 HAND_ACTION = "pick up"
@@ -67,6 +68,22 @@ def run(argv: list[str]) -> None:
         print(f"  hand goal {'given' if hand else 'not given':9s}: wrist misses it by {miss.median():.3f} m "
               f"(median), the pelvis goal (x, z) by {pelvis.median():.3f} m")
     print_goal_geometry("the data", truth.numpy(), wrist.numpy(), truth[rows, -1, wrist].numpy())
+    stride = loaded.window.stride
+    off = [heading_off_travel(np.asarray(j, np.float64)[::stride], ds.fps / stride)
+           for _, j in ds.iter_sequences(opts["split"])]
+    print(f"  the data, walking, faces {quartiles(np.concatenate(off), '°')} off its direction of travel")
+
+
+def heading_off_travel(joints: np.ndarray, fps: float, min_speed: float = 0.5) -> np.ndarray:
+    """Angles (degrees) between the facing and the pelvis's horizontal velocity (central
+    differences) on the frames of joints (T, J, 3) where it moves faster than min_speed m/s."""
+    v = (joints[2:, PELVIS] - joints[:-2, PELVIS])[:, [0, 2]] * fps / 2                          # (T-2, 2)
+    speed = np.linalg.norm(v, axis=-1)
+    yaw = facing_yaw(joints[1:-1])
+    forward = np.stack([np.sin(yaw), np.cos(yaw)], -1)                                      # (T-2, 2) x, z
+    moving = speed > min_speed
+    cos = (forward[moving] * v[moving]).sum(-1) / speed[moving]
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
 def print_goal_geometry(what: str, joints: np.ndarray, wrist: np.ndarray, goal: np.ndarray) -> None:
@@ -77,13 +94,13 @@ def print_goal_geometry(what: str, joints: np.ndarray, wrist: np.ndarray, goal: 
     for name, f in (("first", 0), ("last", -1)):
         off = body_frame_offset(joints[:, f], goal)                                       # (N, 3) left, up, fwd
         print(f"  {what}, goal from the body at the window's {name} frame: forward "
-              f"{_quartiles(off[:, 2])}, towards the hand's side {_quartiles(off[:, 0] * side)}")
+              f"{quartiles(off[:, 2])}, towards the hand's side {quartiles(off[:, 0] * side)}")
     yaw = facing_yaw(joints[:, [0, -1]])                                                  # (N, 2)
     turn = np.degrees(np.abs(np.angle(np.exp(1j * (yaw[:, 1] - yaw[:, 0])))))
-    print(f"  {what}, the body turns over the window by {_quartiles(turn, '°')}")
+    print(f"  {what}, the body turns over the window by {quartiles(turn, '°')}")
 
 
-def _quartiles(v: np.ndarray, unit: str = " m") -> str:
+def quartiles(v: np.ndarray, unit: str = " m") -> str:
     q = np.percentile(v, [25, 50, 75])
     return f"{q[1]:.2f}{unit} ({q[0]:.2f} – {q[2]:.2f})"
 

@@ -9,8 +9,9 @@ sampler's `run_episode` wrapped so that every episode given a hand goal
 sample, the distance from the network's own wrist (before the body) to the goal at the window's
 last frame (where the goal is given), its closest approach over the window, the same after
 the body projection, and at the window's first frame. Prints the medians and quartiles, and
-where the goal lies in the body's own frame and how far the body turns over the window
-(`hand_goal.py` prints the same for the data's windows that end in a pick-up).
+where the goal lies in the body's own frame and how far the body turns over the window, and
+how far off its direction of travel the network's walking body faces (`hand_goal.py` prints
+the same for the data).
 `benchmarks/hand_goal.py` measures the same on validation windows instead of sampled episodes.
 """
 
@@ -20,18 +21,21 @@ import sys
 
 import numpy as np
 
-from hand_goal import print_goal_geometry
+from hand_goal import quartiles, heading_off_travel, print_goal_geometry
 
 from motiongen.commands import evaluate_command
 from motiongen.sampling import autoregressive
 
 RECORDS: list[tuple[float, float, float, float]] = []
 GEOMETRY: list[tuple[np.ndarray, int, np.ndarray]] = []   # (network's joints (L, J, 3), wrist, goal (3,))
+WALKING: list[np.ndarray] = []                             # facing off travel (degrees), walking episodes
 
 
 def _recording(run_episode):
     def run(spec, loaded, query, body_model, state, t, *args, **kw):
         run_episode(spec, loaded, query, body_model, state, t, *args, **kw)
+        if t.kind == "walk":
+            WALKING.extend(heading_off_travel(raw, spec.model_fps) for raw in state.episodes[-1].raw)
         hand = getattr(t, "hand", None)
         if hand is None:
             return
@@ -63,6 +67,7 @@ def main(argv) -> None:
         print(f"{name:>34}: median {q[1]:.3f} m (quartiles {q[0]:.3f}, {q[2]:.3f})")
     joints, wrist, goal = (np.stack(x) for x in zip(*GEOMETRY))
     print_goal_geometry("the network", joints, wrist, goal)
+    print(f"  the network, walking, faces {quartiles(np.concatenate(WALKING), '°')} off its direction of travel")
 
 
 if __name__ == "__main__":
