@@ -8,10 +8,10 @@ sampler's `run_episode` wrapped so that every episode given a hand goal
 (`loop.hand_goal`, checkpoints trained with `mask.p_hand` or `mask.p_hand_action`) records, per
 sample, the distance from the network's own wrist (before the body) to the goal at the window's
 last frame (where the goal is given), its closest approach over the window, the same after
-the body projection, and at the window's first frame. Prints the medians and quartiles, and
-where the goal lies in the body's own frame and how far the body turns over the window, and
-how far off its direction of travel the network's walking body faces (`hand_goal.py` prints
-the same for the data).
+the body projection, and at the window's first frame. Prints their medians and quartiles; where
+the goal lies in the body's own frame and how far the body turns over the window; and how far
+off its direction of travel the network's walking body faces (`hand_goal.py` prints the last
+two for the data).
 `benchmarks/hand_goal.py` measures the same on validation windows instead of sampled episodes.
 """
 
@@ -21,7 +21,7 @@ import sys
 
 import numpy as np
 
-from hand_goal import quartiles, heading_off_travel, print_goal_geometry
+from hand_goal import heading_off_travel, print_goal_geometry, quartiles
 
 from motiongen.commands import evaluate_command
 from motiongen.sampling import autoregressive

@@ -44,7 +44,6 @@ def facing_yaw(joints):
     return xp.arctan2(-across[..., 2], across[..., 0]) if xp is np else xp.atan2(-across[..., 2], across[..., 0])
 
 
-
 def body_frame_offset(joints: np.ndarray, point: np.ndarray) -> np.ndarray:
     """Where world points (..., 3) lie from a body's pelvis, in the body's facing frame:
     (..., 3) = (to its left, up, forward) in metres, from joints (..., J, 3) (SMPL-X body order;
