@@ -25,8 +25,9 @@ from motiongen.eval.evaluate_config import dataset_config
 from motiongen.geometry import body_frame_offset, facing_yaw
 from motiongen.importers.sources import open_dataset
 from motiongen.loading.build import acting_hands, load_model
+from motiongen.metrics import heading_off_travel_angles
 from motiongen.models import Condition
-from motiongen.skeleton import HAND_JOINTS, PELVIS
+from motiongen.skeleton import HAND_JOINTS
 
 SPEC = {"ckpt": (str, None), "split": (str, "val"), "windows": (int, 120), "steps": (int, 10)}
 HAND_ACTION = "pick up"
@@ -69,21 +70,9 @@ def run(argv: list[str]) -> None:
               f"(median), the pelvis goal (x, z) by {pelvis.median():.3f} m")
     print_goal_geometry("the data", truth.numpy(), wrist.numpy(), truth[rows, -1, wrist].numpy())
     stride = loaded.window.stride
-    off = [heading_off_travel(np.asarray(j, np.float64)[::stride], ds.fps / stride)
+    off = [heading_off_travel_angles(np.asarray(j, np.float64)[::stride], ds.fps / stride)
            for _, j in ds.iter_sequences(opts["split"])]
     print(f"  the data, walking, faces {quartiles(np.concatenate(off), '°')} off its direction of travel")
-
-
-def heading_off_travel(joints: np.ndarray, fps: float, min_speed: float = 0.5) -> np.ndarray:
-    """Angles (degrees) between the facing and the pelvis's horizontal velocity (central
-    differences) on the frames of joints (T, J, 3) where it moves faster than min_speed m/s."""
-    v = (joints[2:, PELVIS] - joints[:-2, PELVIS])[:, [0, 2]] * fps / 2                          # (T-2, 2)
-    speed = np.linalg.norm(v, axis=-1)
-    yaw = facing_yaw(joints[1:-1])
-    forward = np.stack([np.sin(yaw), np.cos(yaw)], -1)                                      # (T-2, 2) x, z
-    moving = speed > min_speed
-    cos = (forward[moving] * v[moving]).sum(-1) / speed[moving]
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
 def print_goal_geometry(what: str, joints: np.ndarray, wrist: np.ndarray, goal: np.ndarray) -> None:

@@ -21,9 +21,10 @@ import sys
 
 import numpy as np
 
-from hand_goal import heading_off_travel, print_goal_geometry, quartiles
+from hand_goal import print_goal_geometry, quartiles
 
 from motiongen.commands import evaluate_command
+from motiongen.metrics import heading_off_travel_angles
 from motiongen.sampling import autoregressive
 
 RECORDS: list[tuple[float, float, float, float]] = []
@@ -35,7 +36,7 @@ def _recording(run_episode):
     def run(spec, loaded, query, body_model, state, t, *args, **kw):
         run_episode(spec, loaded, query, body_model, state, t, *args, **kw)
         if t.kind == "walk":
-            WALKING.extend(heading_off_travel(raw, spec.model_fps) for raw in state.episodes[-1].raw)
+            WALKING.extend(heading_off_travel_angles(raw, spec.model_fps) for raw in state.episodes[-1].raw)
         hand = getattr(t, "hand", None)
         if hand is None:
             return

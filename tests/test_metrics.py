@@ -6,9 +6,10 @@ import pytest
 from motiongen.scene.distance_field import surface_distance
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.metrics import (apd, contact_rate, floor_penetration, foot_skating_ratio,
-                                    goal_distances, goal_success, mean_jerk, pskl, scene_penetration, seam_jump,
+                                    goal_distances, goal_success, heading_off_travel, mean_jerk, pskl, scene_penetration, seam_jump,
                                     trajectory_fail_rate)
-from motiongen.skeleton import FOOT_JOINTS, PELVIS
+from motiongen.geometry import yaw_matrix
+from motiongen.skeleton import FOOT_JOINTS, LEFT_HIP, PELVIS, RIGHT_HIP
 
 FPS = 30.0
 TOES = (10, 11)
@@ -31,6 +32,31 @@ def with_feet(j, y, vx, frames=None):
         j[:, k, 1], j[:, k, 0] = y, x
     return j
 
+
+
+def walking(direction_deg: float, facing_deg: float, speed: float = 1.0, T: int = 31) -> np.ndarray:
+    """(T, 22, 3): a pelvis moving at `speed` m/s along the ground direction `direction_deg`
+    (0 = +z, 90 = +x), its hips turned to face `facing_deg` (SMPL-X: facing +z, left is +x)."""
+    j = still(T)
+    go = np.radians(direction_deg)
+    t = np.arange(T)[:, None] / FPS
+    j[:, :, [0, 2]] += speed * t[:, None] * np.array([np.sin(go), np.cos(go)])
+    across = yaw_matrix(np.radians(facing_deg)) @ np.array([0.1, 0.0, 0.0])               # left hip from the pelvis
+    j[:, LEFT_HIP] = j[:, PELVIS] + across
+    j[:, RIGHT_HIP] = j[:, PELVIS] - across
+    return j
+
+
+def test_heading_off_travel_is_the_angle_between_facing_and_going():
+    # Walking facing where it goes: 0; sideways (crab): 90; at 30 degrees: 30, whichever way
+    # the path runs; backwards: 180; standing or too slow: NaN.
+    assert heading_off_travel(walking(0, 0), FPS) == pytest.approx(0.0, abs=1e-6)
+    assert heading_off_travel(walking(120, 120), FPS) == pytest.approx(0.0, abs=1e-6)
+    assert heading_off_travel(walking(90, 0), FPS) == pytest.approx(90.0, abs=1e-6)
+    assert heading_off_travel(walking(-45, -15), FPS) == pytest.approx(30.0, abs=1e-6)
+    assert heading_off_travel(walking(200, 20), FPS) == pytest.approx(180.0, abs=1e-6)
+    assert np.isnan(heading_off_travel(walking(0, 0, speed=0.3), FPS))
+    assert np.isnan(heading_off_travel(still(), FPS))
 
 # --- foot skating ------------------------------------------------------------------------
 

@@ -55,8 +55,9 @@ def motion_arrays(motion: Motion, extra: dict | None = None) -> dict:
 
 def body_figures(motion: Motion) -> dict:
     """Per sample, what the motion is as a body (docs/metrics.md): bone-length CV and largest
-    deviation, grounded-toe median slide speed, foot skating; for the output and for the
-    network's own joints. Lists of S values."""
+    deviation, grounded-toe median slide speed, foot skating, how far off its direction of
+    travel the walking body faces; for the output and for the network's own joints. Lists of S
+    values."""
     parents = joint_set_for(motion.joint_names).parents
     out: dict[str, list] = {}
     for tag, joints in (("", motion.joints), ("network_", motion.joints_raw)):
@@ -89,9 +90,11 @@ def summary_lines(motion: Motion, sampler: SamplerSettings, figures: dict | None
     f = body_figures(motion) if figures is None else figures
     if f:
         lines.append("body: bone-length CV {} (network {}), largest bone deviation {} (network {}), "
-                     "grounded-toe slide {} m/s (network {}), foot skating {} (network {})".format(
-                         *[", ".join(f"{v:.3f}" for v in f.get(tag + k, [])) or "n/a"
-                           for k in ("bone_cv", "bone_max_dev", "slide_mps", "foot_skating")
+                     "grounded-toe slide {} m/s (network {}), foot skating {} (network {}), "
+                     "walking {}° off its direction of travel (network {}°)".format(
+                         *[", ".join(f"{v:.3f}" if k != "heading_deg" else f"{v:.1f}" for v in f.get(tag + k, []))
+                           or "n/a"
+                           for k in ("bone_cv", "bone_max_dev", "slide_mps", "foot_skating", "heading_deg")
                            for tag in ("", "network_")]))
     lines.append(f"wall time {motion.wall_time:.1f} s, real-time factor {motion.real_time_factor:.2f} "
                  f"({S} x {motion.duration:.1f} s of motion / {motion.wall_time:.1f} s)")
