@@ -22,7 +22,7 @@ from motiongen.data.windows import WindowDataset
 from motiongen.diffusion import sample
 from motiongen.diffusion.masks import MaskConfig, known_mask, replace_mask
 from motiongen.eval.evaluate_config import dataset_config
-from motiongen.geometry import body_frame_offset, facing_yaw
+from motiongen.geometry import canonical_frame, facing_yaw, invert_rigid, transform_points
 from motiongen.importers.sources import open_dataset
 from motiongen.loading.build import acting_hands, load_model
 from motiongen.metrics import heading_off_travel_angles
@@ -81,7 +81,8 @@ def print_goal_geometry(what: str, joints: np.ndarray, wrist: np.ndarray, goal: 
     (negative: across the body), at the window's first and last frames; the body's turn."""
     side = np.where(wrist == HAND_JOINTS[0], 1.0, -1.0)                                  # left wrist: +left
     for name, f in (("first", 0), ("last", -1)):
-        off = body_frame_offset(joints[:, f], goal)                                       # (N, 3) left, up, fwd
+        to_body = invert_rigid(canonical_frame(joints[:, f]))                             # (N, 4, 4) world -> body
+        off = transform_points(to_body, goal[:, None])[:, 0]                              # (N, 3) left, y, forward
         print(f"  {what}, goal from the body at the window's {name} frame: forward "
               f"{quartiles(off[:, 2])}, towards the hand's side {quartiles(off[:, 0] * side)}")
     yaw = facing_yaw(joints[:, [0, -1]])                                                  # (N, 2)

@@ -44,15 +44,6 @@ def facing_yaw(joints):
     return xp.arctan2(-across[..., 2], across[..., 0]) if xp is np else xp.atan2(-across[..., 2], across[..., 0])
 
 
-def body_frame_offset(joints: np.ndarray, point: np.ndarray) -> np.ndarray:
-    """Where world points (..., 3) lie from a body's pelvis, in the body's facing frame:
-    (..., 3) = (to its left, up, forward) in metres, from joints (..., J, 3) (SMPL-X body order;
-    the facing of `facing_yaw`)."""
-    yaw = facing_yaw(joints)                                                                 # (...,)
-    d = np.asarray(point, np.float64) - joints[..., PELVIS, :]                               # (..., 3)
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.stack([c * d[..., 0] - s * d[..., 2], d[..., 1], s * d[..., 0] + c * d[..., 2]], -1)
-
 def local_to_world(yaw, origin_xz):
     """4x4 transforms (..., 4, 4) of frames with yaw (...,) at ground positions (..., 2)."""
     xp = _lib(yaw)

@@ -396,8 +396,8 @@ def pskl(a, b, fps: float, length: int | None = None, eps: float = 1e-12) -> tup
     return kl_ab, kl_ba
 
 
-__all__ = ["TOE_JOINTS", "bone_lengths", "BoneConsistency", "bone_consistency", "grounded_slide", "heading_off_travel_angles",
-           "heading_off_travel", "body_metrics",
+__all__ = ["TOE_JOINTS", "bone_lengths", "BoneConsistency", "bone_consistency", "grounded_slide",
+           "heading_off_travel_angles", "heading_off_travel", "body_metrics",
            "finite_mean", "finite_median", "foot_skating_frames", "foot_skating_ratio", "goal_distances", "goal_success",
            "trajectory_fail_rate", "scene_penetration", "floor_penetration",
            "DEFAULT_CONTACT_PARTS", "DEFAULT_SKIN_OFFSET", "contact_rate", "apd", "mean_jerk",

@@ -6,8 +6,8 @@ import pytest
 from motiongen.scene.distance_field import surface_distance
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.metrics import (apd, contact_rate, floor_penetration, foot_skating_ratio,
-                                    goal_distances, goal_success, heading_off_travel, mean_jerk, pskl, scene_penetration, seam_jump,
-                                    trajectory_fail_rate)
+                                    goal_distances, goal_success, heading_off_travel, mean_jerk, pskl,
+                                    scene_penetration, seam_jump, trajectory_fail_rate)
 from motiongen.geometry import yaw_matrix
 from motiongen.skeleton import FOOT_JOINTS, LEFT_HIP, PELVIS, RIGHT_HIP
 
@@ -33,7 +33,6 @@ def with_feet(j, y, vx, frames=None):
     return j
 
 
-
 def walking(direction_deg: float, facing_deg: float, speed: float = 1.0, T: int = 31) -> np.ndarray:
     """(T, 22, 3): a pelvis moving at `speed` m/s along the ground direction `direction_deg`
     (0 = +z, 90 = +x), its hips turned to face `facing_deg` (SMPL-X: facing +z, left is +x)."""
@@ -57,6 +56,7 @@ def test_heading_off_travel_is_the_angle_between_facing_and_going():
     assert heading_off_travel(walking(200, 20), FPS) == pytest.approx(180.0, abs=1e-6)
     assert np.isnan(heading_off_travel(walking(0, 0, speed=0.3), FPS))
     assert np.isnan(heading_off_travel(still(), FPS))
+
 
 # --- foot skating ------------------------------------------------------------------------
 

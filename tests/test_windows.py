@@ -3,7 +3,7 @@ import torch
 
 from motiongen.data.format import MotionDataset
 from motiongen.data.windows import NormStats, WindowConfig, WindowDataset, canonicalize
-from motiongen.geometry import body_frame_offset, facing_yaw, transform_points, yaw_matrix
+from motiongen.geometry import facing_yaw, transform_points
 from tests.helpers import make_dataset
 
 
@@ -20,20 +20,6 @@ def test_canonical_first_frame_at_origin_facing_z(tmp_path):
     assert np.allclose(local[:, :, 1], w[:, :, 1], atol=1e-6)  # heights untouched
     assert np.allclose(transform_points(T, local), w, atol=1e-5)
 
-
-
-def test_body_frame_offset_recovers_a_point_placed_in_the_bodys_own_frame(tmp_path):
-    # A body turned by each yaw, pelvis anywhere: a point put (left, up, forward) of it in its
-    # own frame comes back as those three numbers; facing +z, left is +x (SMPL-X).
-    ds = _ds(tmp_path)
-    body = canonicalize(ds.joints[10:58:3].astype(np.float64))[0][0]                          # (22, 3) facing +z
-    offset = np.array([0.3, -0.2, 0.5])
-    for yaw in (0.0, 0.7, np.pi / 2, -2.5):
-        R = yaw_matrix(np.float64(yaw))
-        moved = body @ R.T + np.array([1.5, 0.0, -4.0])
-        point = moved[0] + R @ offset
-        assert np.allclose(body_frame_offset(moved, point), offset, atol=1e-9)
-    assert np.allclose(body_frame_offset(body, body[0] + [0.0, 0.0, 1.0]), [0, 0, 1], atol=1e-9)
 
 def test_window_count_and_frames(tmp_path):
     ds = _ds(tmp_path, T=100)

@@ -156,9 +156,10 @@ class MotionBody:
         """Local rotations (N, 22, 3, 3) putting rest joints (N, 22, 3) on joints X (N, 22, 3)
         (`project`): bone directions, then the limbs' ends by two-bone IK (bending as `bend`
         (N, 22, 3) bends, or X); twist from hint. Also their joints (N, 22, 3) float64 numpy,
-        root at rest[0], or None for a joint set with extra joints (those need `pose`). The steps between the two swings stay in float64 numpy
-        (`analytic.swing`, `analytic.posed_joints`): on a window's few dozen frames the cost is
-        the number of small operations, which torch makes several times dearer."""
+        root at rest[0], or None for a joint set with extra joints (those need `pose`). The
+        steps between the two swings stay in float64 numpy (`analytic.swing`,
+        `analytic.posed_joints`): on a window's few dozen frames the cost is the number of small
+        operations, which torch makes several times dearer."""
         rest_np = rest.double().numpy()
         X_np = X.detach().double().numpy()
         R, G = swing(X_np, rest_np, None if hint is None else hint.double().numpy())
