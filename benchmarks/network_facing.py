@@ -1,0 +1,85 @@
+"""Which way does the network's body face, on the data's own windows? (not a timed test)
+
+On `windows` validation windows drawn at random, the network is given what the sampler gives a
+walking episode (the window's first 2 frames, its last-frame pelvis x, z) and its prediction is
+compared with the data's window:
+- how far off its direction of travel the walking body faces (`metrics.heading_off_travel`),
+  with the facing taken from the hips (as every table does) and from the shoulders;
+- the distance between the two hips, which a rigid pelvis keeps (the data's is constant) and
+  which no bone-length figure sees: a hip folded in under the pelvis keeps its bone's length;
+- how far the last frame's facing (from the hips) is from the data's.
+A network whose hips fold in has a facing that the hips no longer tell; one whose shoulders are
+also off its travel walks sideways.
+
+    python benchmarks/network_facing.py ckpt=PATH [split=val] [windows=200] [steps=10]
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from hand_goal import quartiles
+
+from motiongen.cli import parse_key_values, tool_main
+from motiongen.data.windows import WindowDataset
+from motiongen.diffusion import sample
+from motiongen.diffusion.masks import known_mask, replace_mask
+from motiongen.eval.evaluate_config import dataset_config
+from motiongen.geometry import facing_yaw
+from motiongen.importers.sources import open_dataset
+from motiongen.loading.build import load_model
+from motiongen.metrics import heading_off_travel_angles
+from motiongen.models import Condition
+from motiongen.skeleton import BODY_JOINT_NAMES, LEFT_HIP, RIGHT_HIP
+
+SPEC = {"ckpt": (str, None), "split": (str, "val"), "windows": (int, 200), "steps": (int, 10)}
+SHOULDERS = (BODY_JOINT_NAMES.index("left_shoulder"), BODY_JOINT_NAMES.index("right_shoulder"))
+
+
+def random_windows(loaded, ds, split: str, n: int) -> dict:
+    """A batch of up to n windows of `split` (fixed draw)."""
+    windows = WindowDataset(ds, split, loaded.window, loaded.stats)
+    idx = sorted(np.random.default_rng(0).choice(len(windows), min(n, len(windows)), replace=False))
+    items = [windows[int(i)] for i in idx]
+    return {k: torch.stack([it[k] for it in items]) for k in items[0]}
+
+
+def off_travel(joints: np.ndarray, fps: float, pair: tuple[int, int]) -> np.ndarray:
+    """Facing-off-travel angles (degrees) of windows joints (N, L, J, 3), the facing taken from
+    the joint pair (left, right) put where the hips are (`heading_off_travel_angles` reads the hips)."""
+    j = joints.copy()
+    j[..., [LEFT_HIP, RIGHT_HIP], :] = joints[..., list(pair), :]
+    return np.concatenate([heading_off_travel_angles(w, fps) for w in j])
+
+
+def run(argv: list[str]) -> None:
+    opts = parse_key_values(argv, SPEC, required=("ckpt",), usage=__doc__.splitlines()[-2].strip())
+    loaded = load_model(opts["ckpt"])
+    ds = open_dataset(dataset_config(None, loaded.config), verbose=False)
+    batch = random_windows(loaded, ds, opts["split"], opts["windows"])
+    x0 = batch["motion"]                                                                       # (B, L, D)
+    B, L, D = x0.shape
+    mask = known_mask(B, L, loaded.joint_set.num_joints, 2, True, False, False, 0, channels=D)
+    x = sample(loaded.diffusion, loaded.model, x0.shape, Condition(scene=batch.get("scene"), actions=batch["actions"]),
+               known=x0, known_mask=mask, sampler="ddim", steps=opts["steps"],
+               generator=torch.Generator().manual_seed(0), replace_mask=replace_mask(mask, loaded.predict_goal))
+    fps = ds.fps / loaded.window.stride
+    print(f"{opts['ckpt']}: {B} {opts['split']} windows, first 2 frames and last-frame pelvis x, z given, "
+          f"DDIM-{opts['steps']}")
+    rows = {}
+    for name, m in (("the data", x0), ("the network", x)):
+        j = loaded.layout.decode(loaded.stats.denormalize(m))[0].numpy().astype(np.float64)  # (B, L, J, 3)
+        rows[name] = j
+        width = np.linalg.norm(j[..., LEFT_HIP, :] - j[..., RIGHT_HIP, :], axis=-1)           # (B, L)
+        print(f"  {name}: walking, faces {quartiles(off_travel(j, fps, (LEFT_HIP, RIGHT_HIP)), '°')} off its "
+              f"direction of travel by the hips, {quartiles(off_travel(j, fps, SHOULDERS), '°')} by the shoulders")
+        print(f"  {name}: hips {quartiles(100 * width[:, 2:].ravel(), ' cm')} apart on the free frames "
+              f"(spread within a window {100 * width[:, 2:].std(1).mean():.2f} cm)")
+    yaw = facing_yaw(np.stack([rows["the data"][:, -1], rows["the network"][:, -1]]))        # (2, B)
+    off = np.degrees(np.abs(np.angle(np.exp(1j * (yaw[1] - yaw[0])))))
+    print(f"  the last frame's facing (hips) is {quartiles(off, '°')} off the data's")
+
+
+if __name__ == "__main__":
+    tool_main(run)()                     # a bad key: one line, exit 2
