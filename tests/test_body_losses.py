@@ -10,8 +10,7 @@ from motiongen.data.windows import NormStats
 from motiongen.diffusion import DiffusionConfig, GaussianDiffusion
 from motiongen.errors import ConfigError
 from motiongen.skeleton import BODY, BODY_PARENTS, FOOT_JOINTS, PELVIS
-from motiongen.skeleton import LEFT_HIP, RIGHT_HIP
-from motiongen.training.body_losses import BodyLosses, length_pairs
+from motiongen.training.body_losses import BodyLosses
 from tests.helpers import REST
 
 L, FPS = 8, 10.0
@@ -51,46 +50,6 @@ def test_closed_forms():
     assert losses()(moved, window(rest, ~planted), free, T0)["planted_feet"][1].item() == pytest.approx(0, abs=1e-9)
     # only frames with a free entry count: all pinned, nothing to learn
     assert losses()(window(big, planted), x0, torch.zeros_like(x0), T0)["bone_length"][1].item() == 0
-
-
-def ancestry(j: int) -> list[int]:
-    """j and every joint above it in the SMPL-X body tree."""
-    return [j] + (ancestry(BODY_PARENTS[j]) if BODY_PARENTS[j] >= 0 else [])
-
-
-def test_siblings_hold_the_hips_apart():
-    """Hips folded in under the pelvis, each keeping its pelvis-hip length and carrying its leg
-    along: no bone changes, so
-    the plain term is 0; with siblings the hips' distances to each other and to spine1 count,
-    and the term is their error over the number of pairs. A rigid turn of the whole body changes no distance either way."""
-    rest = np.repeat(REST[None].astype(np.float64), L, 0)                             # (L, 22, 3)
-    planted, folded = np.ones((L, 4), bool), rest.copy()
-    for hip in (LEFT_HIP, RIGHT_HIP):
-        v = rest[:, hip] - rest[:, PELVIS]                                            # (L, 3)
-        y = -np.sqrt(v[:, 1] ** 2 + 0.5 * v[:, 0] ** 2)                               # half of x's square goes to y
-        shift = rest[:, PELVIS] + np.stack([v[:, 0] * np.sqrt(0.5), y, v[:, 2]], -1) - rest[:, hip]
-        leg = [j for j in range(22) if hip in ancestry(j)]
-        folded[:, leg] += shift[:, None]
-    x0, free = window(rest, planted), torch.ones_like(window(rest, planted))
-    sib = BodyLosses(LAYOUT, STATS, BODY.parents, FPS, 1.0, 0.0, siblings=True)
-    assert losses()(window(folded, planted), x0, free, T0)["bone_length"][1].item() == pytest.approx(0, abs=1e-9)
-    pairs = length_pairs(BODY_PARENTS, siblings=True)
-    dist = lambda j, a, b: np.linalg.norm(j[0, a] - j[0, b])                            # noqa: E731
-    # the hips' distances to each other and to spine1 (the pelvis's third child) change
-    expect = sum(abs(dist(rest, a, b) - dist(folded, a, b)) for a, b in pairs) / len(pairs)
-    assert abs(dist(rest, LEFT_HIP, RIGHT_HIP) - dist(folded, LEFT_HIP, RIGHT_HIP)) > 0.02
-    assert sib(window(folded, planted), x0, free, T0)["bone_length"][1].item() == pytest.approx(expect, rel=1e-6)
-    c, s_ = np.cos(0.7), np.sin(0.7)
-    turned = rest @ np.array([[c, 0, -s_], [0, 1, 0], [s_, 0, c]]).T + np.array([0.3, 0.0, -0.2])
-    assert sib(window(turned, planted), x0, free, T0)["bone_length"][1].item() == pytest.approx(0, abs=1e-9)
-
-
-def test_length_pairs_are_bones_then_siblings():
-    """SMPL-X body: 21 bones; siblings add the pelvis's three children (hips, spine1) pairwise
-    and spine3's three (neck, collars) pairwise; no joint is paired with itself or twice."""
-    bones, every = length_pairs(BODY_PARENTS), length_pairs(BODY_PARENTS, siblings=True)
-    assert len(bones) == 21 and every[:21] == bones and len(every) == 27
-    assert (LEFT_HIP, RIGHT_HIP) in every and len({frozenset(p) for p in every}) == 27
 
 
 def test_terms_reach_the_loss_and_its_gradient():

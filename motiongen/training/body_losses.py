@@ -36,11 +36,12 @@ class BodyLosses:
     noise_weights (T,): each window's weight by its diffusion step (None: all 1)."""
 
     def __init__(self, layout: Layout, stats: NormStats, parents, fps: float, w_bone: float, w_foot: float,
-                 noise_weights: torch.Tensor | None = None, start: int = 0, ramp: int = 0, siblings: bool = False):
+                 noise_weights: torch.Tensor | None = None, start: int = 0, ramp: int = 0):
         if w_foot > 0 and not layout.num_contacts:
             raise ConfigError("train.w_planted_feet needs stance channels (window.contact_joints)")
         self.layout, self.stats, self.fps = layout, stats, float(fps)
-        self.child, self.parent = map(list, zip(*length_pairs(parents, siblings)))
+        self.child = [j for j, p in enumerate(parents) if p >= 0]
+        self.parent = [parents[j] for j in self.child]
         self.w_bone, self.w_foot = float(w_bone), float(w_foot)
         self.noise_weights = noise_weights        # (T,) per diffusion step, or None: uniform
         self.start, self.ramp = int(start), int(ramp)
@@ -74,7 +75,6 @@ class BodyLosses:
         return out
 
     def _bones(self, j_hat, j, frames):
-        # child/parent: every pair whose distance the term holds (bones, and siblings when asked)
         length = lambda x: (x[..., self.child, :] - x[..., self.parent, :]).norm(dim=-1)  # noqa: E731  (B, L, nb)
         err = (length(j_hat) - length(j)).abs().mean(-1)                                  # (B, L)
         return (err * frames).sum() / frames.sum().clamp(min=1e-8)
@@ -85,14 +85,3 @@ class BodyLosses:
         both = (planted[:, 1:] & planted[:, :-1]).to(speed.dtype)                          # (B, L-1, C)
         w = both * torch.maximum(frames[:, 1:], frames[:, :-1])[..., None]
         return (speed * w).sum() / w.sum().clamp(min=1e-8)
-
-
-def length_pairs(parents, siblings: bool = False) -> list[tuple[int, int]]:
-    """(a, b) joint pairs a rigid skeleton keeps at a fixed distance: every bone (child, parent)
-    and, with siblings, every two children of one joint (fixed offsets in their parent's frame)."""
-    pairs = [(j, p) for j, p in enumerate(parents) if p >= 0]
-    if siblings:
-        for p in sorted(set(parents) - {-1}):
-            kids = [j for j, q in enumerate(parents) if q == p]
-            pairs += [(a, b) for i, a in enumerate(kids) for b in kids[i + 1:]]
-    return pairs

@@ -35,11 +35,6 @@ class TrainConfig:
     # ignore it (docs/results.md).
     hand_goal_weight: float = 1.0
     w_bone_length: float = 0.0
-    # The bone-length term also holds the distance between every two children of one joint
-    # (the hips beside the pelvis, the collars beside the neck): a joint's children sit at fixed
-    # offsets in its frame, so those distances are as constant as a bone's. Without them the
-    # network kept the pelvis-hip lengths but let the hips fold in under the pelvis.
-    bone_siblings: bool = False
     w_planted_feet: float = 0.0
     geometry_weighting: str = "uniform"   # uniform | signal: each window by its share of signal ᾱ_t (body_losses.py)
     geometry_start: int = 0          # the step the two terms start at (0 before it) ...

@@ -116,8 +116,7 @@ def body_losses(run: Run) -> BodyLosses | None:
         return None
     weights = run.diffusion.alphas_cumprod if tc.geometry_weighting == "signal" else None   # (T,)
     return BodyLosses(ws.layout, ws.stats, run.ds.joint_set.parents, run.ds.fps / ws.cfg.stride,
-                      tc.w_bone_length, tc.w_planted_feet, weights, tc.geometry_start, tc.geometry_ramp,
-                      tc.bone_siblings)
+                      tc.w_bone_length, tc.w_planted_feet, weights, tc.geometry_start, tc.geometry_ramp)
 
 
 def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
