@@ -36,6 +36,7 @@ def _idx(name: str) -> int:
 
 PELVIS = 0
 LEFT_HIP, RIGHT_HIP = _idx("left_hip"), _idx("right_hip")
+LEFT_SHOULDER, RIGHT_SHOULDER = _idx("left_shoulder"), _idx("right_shoulder")
 HEAD = _idx("head")
 # Feet: ankles and toe ("foot") joints, used for contact and skating.
 LEFT_FOOT_JOINTS = (_idx("left_ankle"), _idx("left_foot"))

@@ -1,6 +1,8 @@
 """Training-time geometry on the network's prediction (motiongen/training/body_losses.py):
 closed forms on a hand-made window, and the terms reaching the loss and its gradient."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import torch
@@ -9,8 +11,11 @@ from motiongen.data.representation import Layout
 from motiongen.data.windows import NormStats
 from motiongen.diffusion import DiffusionConfig, GaussianDiffusion
 from motiongen.errors import ConfigError
-from motiongen.skeleton import BODY, BODY_PARENTS, FOOT_JOINTS, PELVIS
-from motiongen.training.body_losses import BodyLosses
+from motiongen.geometry import facing_yaw
+from motiongen.skeleton import BODY, BODY_PARENTS, FOOT_JOINTS, LEFT_HIP, PELVIS, RIGHT_HIP
+from motiongen.training.body_losses import BodyLosses, across_vectors
+from motiongen.training.train_config import TrainConfig
+from motiongen.training.trainer import body_losses
 from tests.helpers import REST
 
 L, FPS = 8, 10.0
@@ -50,6 +55,48 @@ def test_closed_forms():
     assert losses()(moved, window(rest, ~planted), free, T0)["planted_feet"][1].item() == pytest.approx(0, abs=1e-9)
     # only frames with a free entry count: all pinned, nothing to learn
     assert losses()(window(big, planted), x0, torch.zeros_like(x0), T0)["bone_length"][1].item() == 0
+
+
+def turn(joints: np.ndarray, angle: float) -> np.ndarray:
+    """joints (..., 22, 3) turned by angle (radians) about the vertical through the origin."""
+    c, s_ = np.cos(angle), np.sin(angle)
+    return joints @ np.array([[c, 0, s_], [0, 1, 0], [-s_, 0, c]]).T
+
+
+def test_facing_is_how_far_the_across_vectors_are():
+    """A body turned by θ from the data's, every frame: each across vector (hips, shoulders) moves
+    by its chord 2 sin(θ/2)·|a|, whatever the body turns about, and the term is the norm of both:
+    2 sin(θ/2)·√(|hips|² + |shoulders|²). The whole body moved: 0. Hips each 5 cm further out:
+    0.10 m. The facing the vectors give for the rest pose is +z, as geometry.facing_yaw's."""
+    rest = np.repeat(REST[None].astype(np.float64), L, 0)                             # (L, 22, 3)
+    planted = np.ones((L, 4), bool)
+    x0, free = window(rest, planted), torch.ones_like(window(rest, planted))
+    face = BodyLosses(LAYOUT, STATS, BODY.parents, FPS, 0.0, 0.0, w_facing=1.0)
+    a = across_vectors(torch.as_tensor(REST))                                          # (6,)
+    assert facing_yaw(REST) == pytest.approx(0, abs=1e-9) and a[0] > 0 and a[3] > 0       # left is +x
+    for theta in (0.1, 0.5, np.pi / 2, np.pi):
+        got = face(window(turn(rest, theta) + np.array([0.4, 0, -0.3]), planted), x0, free, T0)["facing"][1].item()
+        assert got == pytest.approx(2 * np.sin(theta / 2) * a.norm().item(), rel=1e-6)
+    assert face(window(rest + np.array([1.0, 0, 2.0]), planted), x0, free, T0)["facing"][1].item() == pytest.approx(0, abs=1e-9)
+    wide = rest.copy()
+    wide[:, [LEFT_HIP, RIGHT_HIP]] += np.array([[0.05, 0, 0], [-0.05, 0, 0]])
+    assert face(window(wide, planted), x0, free, T0)["facing"][1].item() == pytest.approx(0.10, rel=1e-6)
+    # the weight is the ramp's share of w_facing, and only frames with a free entry count
+    assert face(window(turn(rest, 0.5), planted), x0, free, T0)["facing"][0] == 1.0
+    assert face(window(turn(rest, 0.5), planted), x0, torch.zeros_like(x0), T0)["facing"][1].item() == 0
+
+
+def test_the_trainer_builds_the_facing_term_alone():
+    """train.w_facing alone is enough for the trainer to build the geometry terms, and only the
+    facing term is computed; every weight 0 builds none; a negative weight is refused."""
+    data = SimpleNamespace(layout=LAYOUT, stats=STATS, cfg=SimpleNamespace(stride=1))
+    run = lambda tc: SimpleNamespace(tc=tc, train_set=data, ds=SimpleNamespace(joint_set=BODY, fps=FPS))  # noqa: E731
+    x0 = window(np.repeat(REST[None].astype(np.float64), L, 0), np.ones((L, 4), bool))
+    terms = body_losses(run(TrainConfig(w_facing=0.5)))(x0, x0, torch.ones_like(x0), T0)
+    assert list(terms) == ["facing"] and terms["facing"][0] == 0.5
+    assert body_losses(run(TrainConfig())) is None
+    with pytest.raises(ConfigError, match="train.w_facing"):
+        TrainConfig(w_facing=-1.0)
 
 
 def test_terms_reach_the_loss_and_its_gradient():
