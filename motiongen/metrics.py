@@ -134,14 +134,25 @@ def heading_off_travel(joints, fps: float, min_speed: float = 0.5) -> float:
     return float(np.median(a)) if a.size else float("nan")
 
 
+def lower_toe_height(joints, floor_y: float = 0.0, foot_joints: Sequence[int] = TOE_JOINTS) -> float:
+    """Median over the frames of joints (T, J, 3) of the lower toe joint's height above the
+    floor (m): how high a body carries its feet. The data walks with it about 2 cm up (the toe
+    joint sits above the sole); a body lifted over the skating figure's 5 cm line cannot skate
+    by that figure, so this one sits beside it. NaN for no frames."""
+    j = _joints(joints)
+    return float(np.median(j[:, list(foot_joints), 1].min(1) - floor_y)) if len(j) else float("nan")
+
+
 def body_metrics(joints, fps: float, parents: Sequence[int]) -> dict:
     """The one-body figures of a motion (T, J, 3), as every table reports them: bone-length CV
     (median over bones) and largest relative deviation, grounded-toe median slide (m/s, NaN
-    when no foot comes down), the foot skating ratio and the median angle between where the
-    walking body faces and where it goes (degrees, NaN when it never walks)."""
+    when no foot comes down), the foot skating ratio, the lower toe's median height (m) and the
+    median angle between where the walking body faces and where it goes (degrees, NaN when it
+    never walks)."""
     b = bone_consistency(joints, parents)
     return {"bone_cv": b.cv_median, "bone_max_dev": b.max_deviation, "slide_mps": grounded_slide(joints, fps),
-            "foot_skating": foot_skating_ratio(joints, fps), "heading_deg": heading_off_travel(joints, fps)}
+            "foot_skating": foot_skating_ratio(joints, fps), "toe_height_m": lower_toe_height(joints),
+            "heading_deg": heading_off_travel(joints, fps)}
 
 
 def finite_mean(xs) -> float:
@@ -397,7 +408,7 @@ def pskl(a, b, fps: float, length: int | None = None, eps: float = 1e-12) -> tup
 
 
 __all__ = ["TOE_JOINTS", "bone_lengths", "BoneConsistency", "bone_consistency", "grounded_slide",
-           "heading_off_travel_angles", "heading_off_travel", "body_metrics",
+           "heading_off_travel_angles", "lower_toe_height", "heading_off_travel", "body_metrics",
            "finite_mean", "finite_median", "foot_skating_frames", "foot_skating_ratio", "goal_distances", "goal_success",
            "trajectory_fail_rate", "scene_penetration", "floor_penetration",
            "DEFAULT_CONTACT_PARTS", "DEFAULT_SKIN_OFFSET", "contact_rate", "apd", "mean_jerk",

@@ -21,6 +21,7 @@ BODY_METRICS = [
     ("bone_max_dev", "bone max dev", "ratio", "↓"),
     ("slide_mps", "grounded slide", "m/s", "↓"),
     ("foot_skating", "foot skating", "ratio", "↓"),
+    ("toe_height_m", "lower toe height", "m", "≈ref"),
     ("heading_deg", "walk heading off travel", "°", "↓"),
     ("jerk", "mean jerk", "m/s³", "≈ref"),
     ("seam_ratio", "seam jump", "ratio", "≈ref"),

@@ -55,8 +55,8 @@ def motion_arrays(motion: Motion, extra: dict | None = None) -> dict:
 
 def body_figures(motion: Motion) -> dict:
     """Per sample, what the motion is as a body (docs/metrics.md): bone-length CV and largest
-    deviation, grounded-toe median slide speed, foot skating, how far off its direction of
-    travel the walking body faces; for the output and for the network's own joints. Lists of S
+    deviation, grounded-toe median slide speed, foot skating, the lower toe's median height, how
+    far off its direction of travel the walking body faces; for the output and for the network's own joints. Lists of S
     values."""
     parents = joint_set_for(motion.joint_names).parents
     out: dict[str, list] = {}
@@ -91,10 +91,11 @@ def summary_lines(motion: Motion, sampler: SamplerSettings, figures: dict | None
     if f:
         lines.append("body: bone-length CV {} (network {}), largest bone deviation {} (network {}), "
                      "grounded-toe slide {} m/s (network {}), foot skating {} (network {}), "
-                     "walking {}° off its direction of travel (network {}°)".format(
+                     "lower toe {} m up (network {}), walking {}° off its direction of travel (network {}°)".format(
                          *[", ".join(f"{v:.3f}" if k != "heading_deg" else f"{v:.1f}" for v in f.get(tag + k, []))
                            or "n/a"
-                           for k in ("bone_cv", "bone_max_dev", "slide_mps", "foot_skating", "heading_deg")
+                           for k in ("bone_cv", "bone_max_dev", "slide_mps", "foot_skating", "toe_height_m",
+                                     "heading_deg")
                            for tag in ("", "network_")]))
     lines.append(f"wall time {motion.wall_time:.1f} s, real-time factor {motion.real_time_factor:.2f} "
                  f"({S} x {motion.duration:.1f} s of motion / {motion.wall_time:.1f} s)")
