@@ -86,8 +86,12 @@ def print_goal_geometry(what: str, joints: np.ndarray, wrist: np.ndarray, goal: 
         print(f"  {what}, goal from the body at the window's {name} frame: forward "
               f"{quartiles(off[:, 2])}, towards the hand's side {quartiles(off[:, 0] * side)}")
     yaw = facing_yaw(joints[:, [0, -1]])                                                  # (N, 2)
-    turn = np.degrees(np.abs(np.angle(np.exp(1j * (yaw[:, 1] - yaw[:, 0])))))
-    print(f"  {what}, the body turns over the window by {quartiles(turn, '°')}")
+    print(f"  {what}, the body turns over the window by {quartiles(yaw_apart(yaw[:, 1], yaw[:, 0]), '°')}")
+
+
+def yaw_apart(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Degrees in [0, 180] between yaws a and b (radians, any shape), across the ±π wrap."""
+    return np.degrees(np.abs(np.angle(np.exp(1j * (a - b)))))
 
 
 def quartiles(v: np.ndarray, unit: str = " m") -> str:

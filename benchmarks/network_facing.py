@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from hand_goal import quartiles
+from hand_goal import quartiles, yaw_apart
 
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.data.windows import WindowDataset
@@ -31,10 +31,9 @@ from motiongen.importers.sources import open_dataset
 from motiongen.loading.build import load_model
 from motiongen.metrics import heading_off_travel_angles
 from motiongen.models import Condition
-from motiongen.skeleton import BODY_JOINT_NAMES, LEFT_HIP, RIGHT_HIP
+from motiongen.skeleton import LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 
 SPEC = {"ckpt": (str, None), "split": (str, "val"), "windows": (int, 200), "steps": (int, 10)}
-SHOULDERS = (BODY_JOINT_NAMES.index("left_shoulder"), BODY_JOINT_NAMES.index("right_shoulder"))
 
 
 def random_windows(loaded, ds, split: str, n: int) -> dict:
@@ -72,13 +71,13 @@ def run(argv: list[str]) -> None:
         j = loaded.layout.decode(loaded.stats.denormalize(m))[0].numpy().astype(np.float64)  # (B, L, J, 3)
         rows[name] = j
         width = np.linalg.norm(j[..., LEFT_HIP, :] - j[..., RIGHT_HIP, :], axis=-1)           # (B, L)
-        print(f"  {name}: walking, faces {quartiles(off_travel(j, fps, (LEFT_HIP, RIGHT_HIP)), '°')} off its "
-              f"direction of travel by the hips, {quartiles(off_travel(j, fps, SHOULDERS), '°')} by the shoulders")
+        hips, shoulders = off_travel(j, fps, (LEFT_HIP, RIGHT_HIP)), off_travel(j, fps, (LEFT_SHOULDER, RIGHT_SHOULDER))
+        print(f"  {name}: walking, faces {quartiles(hips, '°')} off its direction of travel by the hips, "
+              f"{quartiles(shoulders, '°')} by the shoulders")
         print(f"  {name}: hips {quartiles(100 * width[:, 2:].ravel(), ' cm')} apart on the free frames "
               f"(spread within a window {100 * width[:, 2:].std(1).mean():.2f} cm)")
     yaw = facing_yaw(np.stack([rows["the data"][:, -1], rows["the network"][:, -1]]))        # (2, B)
-    off = np.degrees(np.abs(np.angle(np.exp(1j * (yaw[1] - yaw[0])))))
-    print(f"  the last frame's facing (hips) is {quartiles(off, '°')} off the data's")
+    print(f"  the last frame's facing (hips) is {quartiles(yaw_apart(yaw[1], yaw[0]), '°')} off the data's")
 
 
 if __name__ == "__main__":

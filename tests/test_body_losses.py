@@ -11,7 +11,7 @@ from motiongen.data.representation import Layout
 from motiongen.data.windows import NormStats
 from motiongen.diffusion import DiffusionConfig, GaussianDiffusion
 from motiongen.errors import ConfigError
-from motiongen.geometry import facing_yaw
+from motiongen.geometry import facing_yaw, yaw_matrix
 from motiongen.skeleton import BODY, BODY_PARENTS, FOOT_JOINTS, LEFT_HIP, PELVIS, RIGHT_HIP
 from motiongen.training.body_losses import BodyLosses, across_vectors
 from motiongen.training.train_config import TrainConfig
@@ -59,8 +59,7 @@ def test_closed_forms():
 
 def turn(joints: np.ndarray, angle: float) -> np.ndarray:
     """joints (..., 22, 3) turned by angle (radians) about the vertical through the origin."""
-    c, s_ = np.cos(angle), np.sin(angle)
-    return joints @ np.array([[c, 0, s_], [0, 1, 0], [-s_, 0, c]]).T
+    return joints @ yaw_matrix(np.float64(angle)).T
 
 
 def test_facing_is_how_far_the_across_vectors_are():

@@ -5,7 +5,7 @@ import pytest
 
 from motiongen.scene.distance_field import surface_distance
 from motiongen.scene.occupancy import OccupancyGrid
-from motiongen.metrics import (TOE_JOINTS, apd, body_metrics, contact_rate, floor_penetration, foot_skating_ratio,
+from motiongen.metrics import (apd, body_metrics, contact_rate, floor_penetration, foot_skating_ratio,
                                     goal_distances, goal_success, heading_off_travel, lower_toe_height, mean_jerk, pskl,
                                     scene_penetration, seam_jump, trajectory_fail_rate)
 from motiongen.geometry import yaw_matrix
@@ -50,17 +50,16 @@ def test_lower_toe_height_is_the_median_of_the_lower_toe():
     """Toes at 2 cm and 30 cm (one swinging): the lower one, 0.02 m, every frame; the whole body
     lifted by 5 cm reads 0.07 m, and it no longer skates by the skating figure (its toes are
     over the 5 cm line) although its feet slide at 1 m/s; a floor at y = 0.05 gives 0.02 again."""
-    T, fps = 40, 30.0
-    j = np.zeros((T, 22, 3))
-    j[:, TOE_JOINTS[0], 1], j[:, TOE_JOINTS[1], 1] = 0.02, 0.30
-    j[:, :, 0] += np.arange(T)[:, None] / fps                                          # the whole body slides at 1 m/s
+    j = still(40)
+    j[:, TOES[0], 1], j[:, TOES[1], 1] = 0.02, 0.30
+    j[:, :, 0] += np.arange(40)[:, None] / FPS                                         # the whole body slides at 1 m/s
     assert lower_toe_height(j) == pytest.approx(0.02)
-    assert foot_skating_ratio(j, fps) > 0.9
+    assert foot_skating_ratio(j, FPS) > 0.9
     up = j + np.array([0.0, 0.05, 0.0])
-    assert lower_toe_height(up) == pytest.approx(0.07) and foot_skating_ratio(up, fps) == 0
+    assert lower_toe_height(up) == pytest.approx(0.07) and foot_skating_ratio(up, FPS) == 0
     assert lower_toe_height(up, floor_y=0.05) == pytest.approx(0.02)
     assert np.isnan(lower_toe_height(np.zeros((0, 22, 3))))
-    assert body_metrics(j, fps, BODY_PARENTS)["toe_height_m"] == pytest.approx(0.02)
+    assert body_metrics(j, FPS, BODY_PARENTS)["toe_height_m"] == pytest.approx(0.02)
 
 
 def test_heading_off_travel_is_the_angle_between_facing_and_going():

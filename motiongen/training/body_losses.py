@@ -82,13 +82,13 @@ class BodyLosses:
             out["planted_feet"] = (scale * self.w_foot, self._feet(j_hat, planted, frames))
         if self.w_facing > 0:
             err = (across_vectors(j_hat) - across_vectors(j)).norm(dim=-1)                # (B, L)
-            out["facing"] = (scale * self.w_facing, (err * frames).sum() / frames.sum().clamp(min=1e-8))
+            out["facing"] = (scale * self.w_facing, frame_mean(err, frames))
         return out
 
     def _bones(self, j_hat, j, frames):
         length = lambda x: (x[..., self.child, :] - x[..., self.parent, :]).norm(dim=-1)  # noqa: E731  (B, L, nb)
         err = (length(j_hat) - length(j)).abs().mean(-1)                                  # (B, L)
-        return (err * frames).sum() / frames.sum().clamp(min=1e-8)
+        return frame_mean(err, frames)
 
     def _feet(self, j_hat, planted, frames):
         feet = j_hat[..., list(self.layout.contact_joints), :]                            # (B, L, C, 3)
@@ -98,9 +98,13 @@ class BodyLosses:
         return (speed * w).sum() / w.sum().clamp(min=1e-8)
 
 
-
 def across_vectors(joints: torch.Tensor) -> torch.Tensor:
-    """(..., 6) left − right hip and left − right shoulder of bodies joints (..., J, 3): the
-    vectors whose horizontal part `geometry.facing_yaw` turns into a facing."""
+    """(..., 6) left − right hip and left − right shoulder of bodies joints (..., J, 3): which way
+    the pelvis and the shoulders face (`geometry.facing_yaw` reads the hips' one), and how wide."""
     return torch.cat([joints[..., LEFT_HIP, :] - joints[..., RIGHT_HIP, :],
                       joints[..., LEFT_SHOULDER, :] - joints[..., RIGHT_SHOULDER, :]], -1)
+
+
+def frame_mean(err: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
+    """Mean of per-frame errors err (B, L) weighted by frames (B, L); 0 when no frame counts."""
+    return (err * frames).sum() / frames.sum().clamp(min=1e-8)
