@@ -142,6 +142,39 @@ def test_swing_clearance_keeps_swinging_feet_at_the_predicted_height(bm, method)
     assert shortfall(300.0) < 0.005
 
 
+def test_a_planted_foot_is_held_at_its_height_when_the_body_travels_on(bm):
+    """A standing body whose prediction moves on 30 cm while its left foot is flagged planted
+    throughout: holding the foot still, the solve must angle the leg. Left free to choose the
+    foot's height (`lock_height=False`) it lifts the foot (a diagonal leg reaches further from
+    a higher foot); held, the foot stays at the predicted height, or at the heights it is given
+    (`planted_heights`, the network's own in the sampler), within 2 mm, and still."""
+    from dataclasses import replace
+
+    from motiongen.body.solve import SOLVE_CONFIG
+
+    T = 40
+    _, betas = _posed(bm, 1, seed=4)
+    with torch.no_grad():
+        X = bm.joints(torch.zeros(1, 3), torch.zeros(1, 63), torch.zeros(1, 3), betas).double().numpy()
+    X = np.repeat(X, T, 0)                                                  # (T, 22, 3) rest pose
+    X[..., 1] += 0.02 - X[..., 1].min()                                     # toes 2 cm up, as in the data
+    X[..., 0] += np.linspace(-0.15, 0.15, T)[:, None]                       # walks on 30 cm
+    planted = np.zeros((T, 4), bool)
+    planted[:, :2] = True                                                   # left ankle and toe
+    body = MotionBody(bm, BODY, betas[None])
+    _, R, _ = body.project(X[None])
+    left = list(FOOT_JOINTS[:2])
+    free = _solve(body, "lbfgs", X, R[0], planted, replace(SOLVE_CONFIG, lock_height=False))
+    held = _solve(body, "lbfgs", X, R[0], planted)
+    lower = X[:, left, 1] - 0.01
+    given = body.solve(0, X, R[0], planted, FOOT_JOINTS, planted_heights=np.concatenate([lower, X[:, list(FOOT_JOINTS[2:]), 1]], 1))
+    assert (free.joints[:, left, 1] - X[:, left, 1]).mean() > 0.005          # lifted
+    np.testing.assert_allclose(held.joints[:, left, 1], X[:, left, 1], atol=0.002)
+    np.testing.assert_allclose(given.joints[:, left, 1], lower, atol=0.002)
+    for m in (free, held, given):
+        assert np.ptp(m.joints[:, left, 0], axis=0).max() < 0.005          # still, all three
+
+
 def test_projection_keeps_ankles_and_wrists_where_predicted(bm):
     """A prediction whose knees and elbows are 3 cm off (so its thighs, shins and arms have the
     wrong lengths): following bone directions down the chain would carry those errors to the

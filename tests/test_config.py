@@ -100,6 +100,7 @@ def test_bad_values_are_config_errors_naming_the_key():
     assert loop_overrides({"project": "false", "smooth": 2}) == {"project": False, "smooth": 2.0}
     for values, message in (({"smooth": -1}, "loop.smooth: expected a number >= 0, got -1"),
                             ({"foot_lock": "maybe"}, "loop.foot_lock: expected true or false, got 'maybe'"),
+                            ({"foot_height": "floor"}, "loop.foot_height: expected one of network, body, free, got 'floor'"),
                             ({"warmup": 3}, "loop.warmup: not a key here")):
         with pytest.raises(ConfigError, match=message):
             loop_overrides(values)

@@ -235,6 +235,7 @@ def test_several_checkpoints_average_the_ablation_rows_too():
     (["data=dataset", "data.root=NOTEST"], "no test scenes"),
     (["loop.smooth=-1"], "loop.smooth: expected a number >= 0"),
     (["loop.foot_lock=maybe"], "loop.foot_lock: expected true or false"),
+    (["loop.foot_height=floor"], "loop.foot_height: expected one of network, body, free"),
     (["max_episodes=0"], "max_episodes: expected an integer >= 1"),
     (["min_distance=-1"], "min_distance: expected a number >= 0"),
     (["k=abc"], "k: expected an integer, got 'abc'"),

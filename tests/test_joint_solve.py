@@ -18,7 +18,8 @@ from motiongen.skeleton import FOOT_JOINTS, HAND_JOINTS
 
 
 def _objective(Y, X, cfg, planted, reach):
-    """`fit.refine`'s joint terms written out on joints Y (T, 22, 3) (torch), term by term."""
+    """`fit.refine`'s joint terms written out on joints Y (T, 22, 3) (torch), term by term; a
+    lock span's centre is its own mean, upwards (cfg.lock_height) the mean of X's heights."""
     T = Y.shape[0]
     loss = cfg.w_joints * (Y - X).square().sum(-1).mean()
     acc = (Y[2:] - 2 * Y[1:-1] + Y[:-2]).square().sum(-1)                          # (T-2, 22)
@@ -38,7 +39,10 @@ def _objective(Y, X, cfg, planted, reach):
             while e < T and col[e]:
                 e += 1
             span = Y[t:e, j]
-            sq = sq + (span - span.mean(0)).square().sum()
+            centre = span.mean(0)
+            if cfg.lock_height:
+                centre = torch.stack([centre[0], X[t:e, j, 1].mean(), centre[2]])
+            sq = sq + (span - centre).square().sum()
             on += e - t
             t = e
     loss = loss + cfg.w_contact * sq / on
@@ -51,11 +55,11 @@ def _objective(Y, X, cfg, planted, reach):
     return loss
 
 
-@pytest.mark.parametrize("feet", [None, 400.0])
-def test_solve_joints_is_the_objectives_minimum(feet):
+@pytest.mark.parametrize("feet,held", [(None, True), (400.0, True), (None, False)])
+def test_solve_joints_is_the_objectives_minimum(feet, held):
     """Every term of the final solve at once (locks, reach, floor and clearance active on some
-    entries; the feet's own acceleration weight or not): the objective is convex, so a zero
-    gradient is its global minimum."""
+    entries; the feet's own acceleration weight or not; lock spans held at a height or not):
+    the objective is convex, so a zero gradient is its global minimum."""
     rng = np.random.default_rng(0)
     T = 40
     X = rng.normal(0, 0.05, (T, 22, 3)) + np.linspace(0, 1, T)[:, None, None] * [1, 0, 0]
@@ -65,7 +69,7 @@ def test_solve_joints_is_the_objectives_minimum(feet):
     planted[3:12, 0] = planted[20:31, 1] = planted[5:9, 2] = True
     reach = (np.array([10, 11, 12, 30]), np.array([HAND_JOINTS[0]] * 3 + [0]),
              rng.normal(0, 0.3, (4, 3)), np.array([0.5, 1.0, 0.5, 2.0]))
-    cfg = replace(SOLVE_CONFIG, w_smooth_joints=50.0, w_smooth_contact=feet, floor_y=0.003)
+    cfg = replace(SOLVE_CONFIG, w_smooth_joints=50.0, w_smooth_contact=feet, floor_y=0.003, lock_height=held)
     Y = solve_joints(X, cfg, planted, FOOT_JOINTS, reach)
     Yt = torch.tensor(Y, requires_grad=True)
     Xt = torch.as_tensor(X)
@@ -101,6 +105,28 @@ def test_a_planted_span_holds_one_spot_and_the_rest_is_smoothed():
     d2 = lambda a: np.linalg.norm(a[2:] - 2 * a[1:-1] + a[:-2], axis=-1).mean()
     assert d2(Y[:, 15]) < 0.2 * d2(X[:, 15])
     np.testing.assert_allclose(Y[:, 15].mean(0), X[:, 15].mean(0), atol=2e-3)
+
+
+def test_a_planted_span_is_held_at_the_heights_given():
+    """A foot predicted 5 cm up while flagged planted, its heights given as 2 cm (the network's
+    own, where the prediction is the projected body's): the span is held at 2 cm, within a
+    millimetre, and still; across the floor the solve is the same as without held heights."""
+    T = 60
+    X = np.zeros((T, 22, 3))
+    X[:, :, 1] = 0.5
+    j = FOOT_JOINTS[1]
+    X[:, j, 1] = 0.05
+    X[:, j, 0] = np.linspace(0, 0.1, T)
+    planted = np.zeros((T, 4), bool)
+    planted[10:50, 1] = True
+    heights = X[:, list(FOOT_JOINTS), 1].copy()
+    heights[:, 1] = 0.02
+    cfg = replace(SOLVE_CONFIG, w_smooth_joints=50.0, w_floor=0.0, w_clearance=0.0)
+    Y = solve_joints(X, cfg, planted, FOOT_JOINTS, planted_heights=heights)
+    np.testing.assert_allclose(Y[15:45, j, 1], 0.02, atol=1e-3)
+    free = solve_joints(X, replace(cfg, lock_height=False), planted, FOOT_JOINTS, planted_heights=heights)
+    np.testing.assert_allclose(free[10:50, j, 1], 0.05, atol=1e-3)       # the lock leaves the height alone
+    np.testing.assert_allclose(Y[..., [0, 2]], free[..., [0, 2]])         # across the floor: the same solve
 
 
 def test_soft_reach_never_snaps_the_knee():

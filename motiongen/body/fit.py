@@ -12,7 +12,9 @@ rotations, translations, one β per sequence) with L-BFGS on
   + w_prior  · mean ‖R − R_init‖²_F              stay near the initialisation (twist is
                                                  barely observable from joints)
   + w_betas  · ‖β‖² / nβ                         shape prior
-  + w_contact · mean over contact spans of ‖J_t − mean_span J‖²  (optional foot locking)
+  + w_contact · mean over contact spans of ‖J_t − c_span‖²   (optional foot locking: c_span
+                 is the span's own mean across the floor, and upwards the height it is held
+                 at, by default the target's mean height over the span)
   + w_clearance · mean over unplanted contact-joint frames of max(0, y_target − y)²
                                                  (swing clearance: smoothing may not lower a
                                                  swinging foot)
@@ -61,6 +63,10 @@ class RefineConfig:
     w_prior: float = 1e-4
     w_betas: float = 1e-5
     w_contact: float = 0.0
+    # The foot lock holds each planted span at a height: `refine`'s planted_heights, or the
+    # target's, averaged over the span. False: at whatever height the rest of the objective
+    # likes, which lifts the feet of a body that travels further than its stride (`lock_loss`).
+    lock_height: bool = True
     w_reach: float = 0.0            # weight of `reach` targets (a hand on an object)
     w_floor: float = 0.0            # joint centres below floor_y (squared depth, summed over joints)
     floor_y: float = 0.0
@@ -110,24 +116,40 @@ def contact_spans(contact: torch.Tensor) -> tuple[torch.Tensor, int]:
     return ids, int(start.sum())
 
 
-def lock_loss(J: torch.Tensor, ids: torch.Tensor, n: int, joints) -> torch.Tensor:
-    """Mean squared distance of each locked joint from its own mean over its contact span:
-    zero when a planted foot stays put, whatever the spot (no target to choose). J (T, J, 3),
-    ids (T, C) from `contact_spans`, joints (C,) joint index per column."""
+def lock_loss(J: torch.Tensor, ids: torch.Tensor, n: int, joints, heights: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean squared distance of each locked joint from its span's centre: zero when a planted
+    foot stays put. Across the floor (x, z) the centre is the span's own mean (no spot to
+    choose); its height is `heights` (n,), the height each span is held at, or, None, the span's
+    own mean too. A free height lets a solve that must also follow a body moving faster than its
+    feet lift the planted feet off the floor: a diagonal leg reaches further with the foot
+    higher (docs/results.md, "The output's feet float"). J (T, J, 3), ids (T, C) from
+    `contact_spans`, joints (C,) joint index per column."""
     P = J[:, list(joints)]                                                     # (T, C, 3)
     on = ids >= 0
     sel, idx = P[on], ids[on]                                                  # (N, 3), (N,)
     sums = torch.zeros(n, 3, dtype=J.dtype, device=J.device).index_add_(0, idx, sel)
     counts = torch.zeros(n, dtype=J.dtype, device=J.device).index_add_(0, idx, torch.ones_like(idx, dtype=J.dtype))
-    mean = sums / counts[:, None]
+    mean = sums / counts[:, None]                                              # (n, 3)
+    if heights is not None:
+        mean = torch.stack([mean[:, 0], heights.to(J.dtype), mean[:, 2]], -1)
     return (sel - mean[idx]).square().sum(-1).mean()
+
+
+def span_heights(ids: torch.Tensor, n: int, heights: torch.Tensor) -> torch.Tensor:
+    """(n,) the mean over each contact span of `heights` (T, C), one height per entry of the
+    span ids (T, C) of `contact_spans`."""
+    on = ids >= 0
+    idx = ids[on]
+    sums = torch.zeros(n, dtype=heights.dtype, device=heights.device).index_add_(0, idx, heights[on])
+    counts = torch.zeros(n, dtype=heights.dtype, device=heights.device).index_add_(0, idx, torch.ones_like(idx, dtype=heights.dtype))
+    return sums / counts
 
 
 def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_init: torch.Tensor,
            cfg: RefineConfig = RefineConfig(), contact: torch.Tensor | None = None,
            fixed_betas: bool = False, contact_joints=FOOT_JOINTS, transl_init: torch.Tensor | None = None,
            reach: tuple | None = None, fps: float = DATA_FPS, target_weights: torch.Tensor | None = None,
-           extra=None):
+           extra=None, planted_heights: torch.Tensor | None = None):
     """Refine (T, 22, 3, 3) rotations, (T, 3) translations and (nβ,) betas to fit target
     joints (T, 22, 3) at `fps`. contact (T, C) bool flags `contact_joints` as planted (foot
     locking, weight `cfg.w_contact`; and the frames of the foot velocity term, weight
@@ -138,7 +160,9 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
     target entry (0 where a joint was not observed; None: all 1). extra: a callable
     (rotmats (T, 22, 3, 3), transl (T, 3), betas) -> scalar added to the loss in the joint
     term's units (m²; the learned motion priors' terms, `motiongen.capture.prior_fit`).
-    Returns (rotmats, transl, betas, steps, history)."""
+    planted_heights (T, C): the heights the foot lock holds `contact_joints` at, each span at its
+    mean (None: the target's own heights; `lock_loss`). Returns (rotmats, transl, betas, steps,
+    history)."""
     T = target.shape[0]
     R0 = rot_init.detach()
     rot6d = matrix_to_rot6d(R0).clone().requires_grad_(True)                   # (T, 22, 6)
@@ -150,7 +174,7 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
     nb = max(betas.numel(), 1)
     # Scaled so that a 1 cm mean error is a loss of about 1: keeps L-BFGS tolerances meaningful.
     scale = 1e4
-    ct = _contact_terms(cfg, target, contact, contact_joints)
+    ct = _contact_terms(cfg, target, contact, contact_joints, planted_heights)
     if target_weights is not None:
         tw = target_weights.to(target.dtype)
         tw_sum = tw.sum().clamp(min=1e-9)
@@ -173,7 +197,8 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
         if betas.requires_grad and cfg.w_betas:
             loss = loss + cfg.w_betas * betas.square().sum() / nb
         if ct.lock is not None:
-            loss = loss + cfg.w_contact * lock_loss(J, *ct.lock, contact_joints)
+            ids, n, held = ct.lock
+            loss = loss + cfg.w_contact * lock_loss(J, ids, n, contact_joints, held)
         if ct.foot_mask is not None:
             loss = loss + cfg.w_foot_vel * foot_velocity_loss(J, ct.foot_mask, contact_joints, fps, cfg.foot_vel_a)
         if cfg.w_floor:
@@ -199,7 +224,7 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
 class _ContactTerms:
     """What the contact-driven terms of `refine`'s loss need, built once per solve (not at every
     loss evaluation, the L-BFGS hot path). None: the term is off."""
-    lock: tuple | None = None                 # (span ids (T, C), number of spans) for foot locking
+    lock: tuple | None = None                 # (span ids (T, C), number of spans, height per span (n,))
     swing: torch.Tensor | None = None         # (T, C) 1.0 where a contact joint is not planted
     swing_j: torch.Tensor | None = None       # (C,) the contact joints
     swing_y: torch.Tensor | None = None       # (T, C) their target heights
@@ -207,12 +232,16 @@ class _ContactTerms:
     foot_mask: torch.Tensor | None = None     # (T, C) frames of the foot velocity term
 
 
-def _contact_terms(cfg: RefineConfig, target: torch.Tensor, contact: torch.Tensor | None, contact_joints) -> _ContactTerms:
-    """The foot-locking spans, swing-clearance targets and foot-velocity frames for target
-    joints (T, 22, 3) and contact flags (T, C) of `contact_joints`, as far as cfg's weights ask."""
+def _contact_terms(cfg: RefineConfig, target: torch.Tensor, contact: torch.Tensor | None, contact_joints,
+                   planted_heights: torch.Tensor | None = None) -> _ContactTerms:
+    """The foot-locking spans and heights, swing-clearance targets and foot-velocity frames for
+    target joints (T, 22, 3) and contact flags (T, C) of `contact_joints`, as far as cfg's
+    weights ask; planted_heights (T, C) or None: see `refine`."""
     ct = _ContactTerms()
     if contact is not None and cfg.w_contact and bool(contact.any()):
-        ct.lock = contact_spans(contact)
+        ids, n = contact_spans(contact)
+        held = target[:, list(contact_joints), 1] if planted_heights is None else planted_heights.to(target.dtype)
+        ct.lock = (ids, n, span_heights(ids, n, held) if cfg.lock_height else None)
     if contact is not None and cfg.w_clearance:
         ct.swing = (~contact.to(torch.bool)).to(target.dtype)                        # (T, C)
         ct.swing_j = torch.as_tensor(list(contact_joints), device=target.device)     # (C,)

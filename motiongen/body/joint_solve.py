@@ -10,7 +10,8 @@ each joint coordinate's T values interact only with their own neighbours in time
     w_joints        · mean ‖Y − X‖²                        follow the (projected) prediction
   + w_smooth_joints · mean ‖Y_{t-1} − 2Y_t + Y_{t+1}‖²     joint acceleration (w_smooth_contact
                                                           for the contact joints, if set)
-  + w_contact       · mean over planted entries of ‖Y_t − mean_span Y‖²  (foot lock)
+  + w_contact       · mean over planted entries of ‖Y_t − c_span‖²  (foot lock: c_span is the
+                                                          span's mean, upwards its held height)
   + w_reach         · weighted mean of ‖Y_f,j − p‖²         (a hand on an object, a seated pelvis)
   + w_floor         · floor_y − y, squared, where a joint centre is below the floor
   + w_clearance     · X_y − y, squared, where a swinging foot joint is below its prediction
@@ -43,12 +44,14 @@ ACTIVE_SET_ROUNDS = 20     # solves at most; on sampled motions the set settles 
 
 
 def solve_joints(X: np.ndarray, cfg: RefineConfig, planted: np.ndarray | None = None, contact_joints=(),
-                 reach: tuple | None = None) -> np.ndarray:
+                 reach: tuple | None = None, planted_heights: np.ndarray | None = None) -> np.ndarray:
     """Joints Y (T, 22, 3) float64 minimising the objective above for targets X (T, 22, 3).
 
     planted (T, C) bool flags `contact_joints` (C,) as planted (lock spans; the others swing,
     for the clearance term); None: no lock and no clearance. reach = (frames (N,), joints (N,),
-    points (N, 3), weights (N,)) or None."""
+    points (N, 3), weights (N,)) or None. With cfg.lock_height a lock span is held at the mean
+    over the span of planted_heights (T, C) (None: of X's heights), as `fit.lock_loss` does:
+    upwards the lock is then a pull towards a fixed height, not a rank-one part."""
     X = np.asarray(X, np.float64)
     T, J = X.shape[:2]
     if T < 3:
@@ -78,6 +81,13 @@ def solve_joints(X: np.ndarray, cfg: RefineConfig, planted: np.ndarray | None = 
                     U[a:b, k] = 1.0
                     diag[j, a:b] += w
                 locks[j] = (U, w / U.sum(0))
+    locks_y, held = locks, np.zeros((J, T))               # upwards: the lock, or a pull to held heights
+    if locks and cfg.lock_height:
+        H = X[:, list(contact_joints), 1] if planted_heights is None else np.asarray(planted_heights, np.float64)
+        for c, j in enumerate(contact_joints):
+            for a, b in true_runs(planted[:, c]):
+                held[j, a:b] = w * H[a:b, c].mean()
+        locks_y = {}
     if reach is not None and cfg.w_reach:
         f, jj, p, w = (np.asarray(a) for a in reach)
         w = cfg.w_reach * n * w.astype(np.float64) / max(float(w.sum()), 1e-9)
@@ -106,9 +116,9 @@ def solve_joints(X: np.ndarray, cfg: RefineConfig, planted: np.ndarray | None = 
     for _ in range(ACTIVE_SET_ROUNDS):
         fw = np.where(floor_on, bound_w, 0.0)                                           # (J, T)
         sw = np.where(swing_on, swing_w, 0.0)
-        b = rhs[:, 1] + fw * bound_y + sw * X[:, :, 1].T                                    # (J, T)
+        b = rhs[:, 1] + held + fw * bound_y + sw * X[:, :, 1].T                             # (J, T)
         todo = list(todo)
-        Y[:, todo, 1] = _solve_joints(todo, bases, diag + fw + sw, locks, b[:, :, None])[..., 0].T
+        Y[:, todo, 1] = _solve_joints(todo, bases, diag + fw + sw, locks_y, b[:, :, None])[..., 0].T
         new_floor = (Y[:, :, 1].T < bound_y) & (bound_w > 0)
         new_swing = (Y[:, :, 1].T < X[:, :, 1].T) & (swing_w > 0)
         todo = np.nonzero((new_floor != floor_on).any(1) | (new_swing != swing_on).any(1))[0]

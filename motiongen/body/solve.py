@@ -11,7 +11,8 @@ motion and turns predicted joints into that body:
   from a rigid body;
 * `solve` is the final pass over the whole motion at the output rate: the same refinement as
   `motiongen.body.fit` (joint L2, smoothness, rotation prior) with foot locking — every span a
-  foot joint is predicted planted, it is held in one place (`fit.lock_loss`), and between
+  foot joint is predicted planted, it is held in one place at the height the network predicted
+  for it (`fit.lock_loss`), and between
   those spans a foot is not pulled below its predicted height (swing clearance);
   `solve_joint_space` is the same pass in closed form (`loop.solve=joint-space`,
   `joint_solve.py`): about 20 times faster, with the trade-off docs/sampling.md describes.
@@ -171,14 +172,14 @@ class MotionBody:
 
     def solve_joint_space(self, sample: int, joints: np.ndarray, rot_hint: torch.Tensor,
                           planted: np.ndarray | None = None, contact_joints=(), cfg: RefineConfig | None = None,
-                          reach=None) -> BodyMotion:
+                          reach=None, planted_heights: np.ndarray | None = None) -> BodyMotion:
         """The final pass for one sample as `solve`, in closed form: the objective's joint
         terms minimised exactly in joint space (`joint_solve.solve_joints`), then put on the
         body (`project`'s analytic fit, frame by frame; twist from rot_hint (T, 22, 3, 3)).
         About 20 times faster than `solve`; the figures of both: docs/results.md."""
         cfg = cfg if cfg is not None else SOLVE_CONFIG
         X = np.asarray(joints[:, :NUM_BODY_JOINTS], np.float64)
-        Y = solve_joints(X, cfg, planted, contact_joints, reach)                                # (T, 22, 3)
+        Y = solve_joints(X, cfg, planted, contact_joints, reach, planted_heights)               # (T, 22, 3)
         T = Y.shape[0]
         lengths = limb_lengths(self.rest[sample].double()).numpy()                              # (4,)
         Y = into_reach(Y, lengths, held_limbs(T, reach), TRUNK_SHIFT_SMOOTHING)
@@ -190,11 +191,13 @@ class MotionBody:
         return self._motion(sample, R, transl, None if P is None else P + transl.double().numpy()[:, None])
 
     def solve(self, sample: int, joints: np.ndarray, rot_init: torch.Tensor, planted: np.ndarray | None = None,
-              contact_joints=(), cfg: RefineConfig | None = None, reach=None) -> BodyMotion:
+              contact_joints=(), cfg: RefineConfig | None = None, reach=None,
+              planted_heights: np.ndarray | None = None) -> BodyMotion:
         """The final pass for one sample: joints (T, J, 3) to follow, local rotations (T, 22, 3, 3)
         to start from, planted (T, C) bool for `contact_joints` (None or cfg.w_contact = 0: no
         locking), reach = (frames (N,), body joints (N,), points (N, 3), weights (N,)) or None: a
-        hand to put on an object. Returns the body's motion."""
+        hand to put on an object, planted_heights (T, C) or None: the heights a planted span is
+        held at (`fit.refine`; None: those of `joints`). Returns the body's motion."""
         cfg = cfg if cfg is not None else SOLVE_CONFIG
         X = torch.as_tensor(np.asarray(joints[:, :NUM_BODY_JOINTS], np.float64), dtype=self.rest.dtype)
         betas = self.betas[sample]
@@ -206,8 +209,9 @@ class MotionBody:
             f, j, p, w = reach
             reach = (torch.as_tensor(f, dtype=torch.long), torch.as_tensor(j, dtype=torch.long),
                      torch.as_tensor(p, dtype=X.dtype), torch.as_tensor(w, dtype=X.dtype))
+        heights = None if planted_heights is None or contact is None else torch.as_tensor(planted_heights, dtype=X.dtype)
         R, transl, _, _, _ = refine(self.bm, X, rot_init.to(X.dtype), betas, cfg, contact, fixed_betas=True,
-                                    contact_joints=tuple(contact_joints), reach=reach)
+                                    contact_joints=tuple(contact_joints), reach=reach, planted_heights=heights)
         return self._motion(sample, R, transl)
 
     def _motion(self, sample: int, R: torch.Tensor, transl: torch.Tensor, joints: np.ndarray | None = None) -> BodyMotion:

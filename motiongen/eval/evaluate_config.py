@@ -18,7 +18,7 @@ from motiongen.importers.sources import DataConfig
 from motiongen.loading.keys import CheckpointKeys
 from motiongen.sampling.assemble import SOLVE_METHODS
 from motiongen.sampling.sample_config import MAX_SAMPLES, check_sampler_settings
-from motiongen.sampling.settings import CLEANUP_STAGES, SamplerSettings
+from motiongen.sampling.settings import CLEANUP_STAGES, FOOT_HEIGHTS, SamplerSettings
 
 
 # Denoising steps when `steps` is unset (a model trained by `train`): k samples x pairs x scenes x
@@ -37,6 +37,7 @@ class LoopOverrides:
 
     project: bool | None = None     # false: the network's joints, no body (nor final solve)
     foot_lock: bool | None = None   # false: no foot locking in the final solve
+    foot_height: str | None = None  # network | body | free: the height a planted foot is held at
     pin_goal: bool | None = None    # true: write the goal pelvis into the result (the public code)
     smooth: float | None = None     # Gaussian sigma (output frames) before the final solve; 0 = off
     seam_blend: float | None = None  # seconds; 0 = off
@@ -130,6 +131,8 @@ def loop_overrides(loop) -> dict:
     out = {k: v for k, v in asdict(loop).items() if v is not None}
     if "solve" in out:
         require_choice("loop.solve", out["solve"], SOLVE_METHODS)
+    if "foot_height" in out:
+        require_choice("loop.foot_height", out["foot_height"], FOOT_HEIGHTS)
     for key, value in out.items():
         if isinstance(value, float) and value < 0:
             raise ConfigError(f"loop.{key}: expected a number >= 0, got {value:g}")

@@ -127,27 +127,29 @@ def planted_at_output(stance: np.ndarray, joints: np.ndarray, contact_joints, mo
 
 def solve_bodies(body, joints: np.ndarray, rot_model: torch.Tensor, planted: np.ndarray | None,
                  contact_joints, model_fps: float, out_fps: float, reach: list | None = None, cfg=None,
-                 samples=None, method: str = "lbfgs") -> list:
+                 samples=None, method: str = "lbfgs", planted_heights: np.ndarray | None = None) -> list:
     """The final solve, per sample: joints (S, T, J, 3) to follow at the output rate (resampled
     projected frames), rot_model (S, Tm, 22, 3, 3) the episodes' rotations (twist hints),
     planted (S, T, C) or None, reach: per sample a `reach_targets` tuple or None, cfg: the
     solve's RefineConfig (None: body.solve.SOLVE_CONFIG), samples: which to solve (None: all),
     method: "lbfgs" (`MotionBody.solve`: 80 L-BFGS iterations over the rotations) or
     "joint-space" (`MotionBody.solve_joint_space`: the objective's minimum in joint space in
-    closed form, then the analytic fit). Returns one `BodyMotion` per sample solved."""
+    closed form, then the analytic fit), planted_heights (S, T, C) or None: the heights the foot
+    lock holds the contact joints at (`fit.refine`; None: those of `joints`). Returns one `BodyMotion` per sample solved."""
     require_choice("loop.solve", method, SOLVE_METHODS)
     t_out, near = output_times(rot_model.shape[1], model_fps, out_fps)
     out = []
     for s in range(joints.shape[0]) if samples is None else samples:
         p = None if planted is None else planted[s]
         r = None if reach is None else reach[s]
+        h = None if planted_heights is None else planted_heights[s]
         if method == "joint-space":
             hint = interpolate_rotations(rot_model[s], model_fps, t_out)                   # (T, 22, 3, 3)
-            out.append(body.solve_joint_space(s, joints[s], hint, p, contact_joints, cfg=cfg, reach=r))
+            out.append(body.solve_joint_space(s, joints[s], hint, p, contact_joints, cfg=cfg, reach=r, planted_heights=h))
             continue
         X = torch.as_tensor(joints[s, :, :NUM_BODY_JOINTS], dtype=body.rest.dtype)        # (T, 22, 3)
         R0 = analytic_init(X, body.rest[s], rot_model[s, near].to(X.dtype))              # (T, 22, 3, 3)
-        out.append(body.solve(s, joints[s], R0, p, contact_joints, cfg=cfg, reach=r))
+        out.append(body.solve(s, joints[s], R0, p, contact_joints, cfg=cfg, reach=r, planted_heights=h))
     return out
 
 

@@ -1,7 +1,7 @@
 """The clean-up after the last episode: the kept model-rate frames resampled to the output rate
 (cubic spline), the feet to lock, the non-foot joints smoothed, seated bodies put on their
-seats, and the final solve on the body over the whole motion (planted feet held in place, a
-hand on the object it picks up). The network's own joints are resampled beside, so that what
+seats, and the final solve on the body over the whole motion (planted feet held in place at
+the network's own heights, a hand on the object it picks up). The network's own joints are resampled beside, so that what
 the clean-up did can be measured."""
 
 from __future__ import annotations
@@ -57,11 +57,17 @@ def clean_up(state: EpisodeState, layout, model_fps: float, plan: GoalPlan, loop
         clearance = SOLVE_CONFIG.w_clearance if loop.swing_clearance else 0.0
         reach = [merge_targets(h, p) for h, p in zip(hands, seats)]
         rots = torch.cat(state.rots, 1)
+        # By default a planted foot is held where the network put it, not where the projection
+        # did: the body's legs may be shorter than the network's, its feet then above the floor.
+        network = loop.foot_height == "network" and layout.num_contacts
+        heights = raw_out[:, :, list(layout.contact_joints), 1] if network else None          # (S, T, C)
 
         def solve(samples, targets):
             return solve_bodies(state.body, out, rots, planted if loop.foot_lock else None, layout.contact_joints,
                                 model_fps, loop.out_fps, targets, samples=samples, method=loop.solve,
-                                cfg=dataclasses.replace(SOLVE_CONFIG, w_clearance=clearance, **weights))
+                                cfg=dataclasses.replace(SOLVE_CONFIG, w_clearance=clearance,
+                                                        lock_height=loop.foot_height != "free", **weights),
+                                planted_heights=heights)
 
         bodies = solve(None, reach)
         bodies = settle_hands(bodies, reach, objects, state.body.bm,

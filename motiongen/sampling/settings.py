@@ -7,6 +7,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from motiongen.checks import require_choice
 from motiongen.errors import ConfigError
 from motiongen.rates import DATA_FPS, DEFAULT_STEPS
 from motiongen.sampling.goals import Route
@@ -60,6 +61,9 @@ def resolve_sampler(s: SamplerSettings, loaded, default_steps: int = DEFAULT_STE
     return replace(s, steps=n, guidance_scale=guidance)
 
 
+FOOT_HEIGHTS = ("network", "body", "free")
+
+
 @dataclass
 class LoopConfig:
     warmup: int = 2                # episodes standing at the start before walking
@@ -79,6 +83,11 @@ class LoopConfig:
     source_fps: float | None = None  # rate of the training data (before stride); None = the checkpoint's
     project: bool = True           # one body: each episode projected onto it, and the final solve
     foot_lock: bool = True         # the final solve holds predicted planted feet in place
+    # The height a planted foot is held at: the network's own prediction ("network"), the
+    # projected body's ("body": 1-2 cm higher where the body's legs are shorter than the
+    # network's), or whatever suits the rest of the solve ("free": the feet rise to let the body
+    # travel further than its stride; docs/results.md, "The output's feet float").
+    foot_height: str = "network"
     pin_goal: bool = False         # write the goal into the result (the public code); default: the model predicts it
     smooth: float = 2.0            # Gaussian sigma (output frames) over the non-foot joints before the final solve; 0 = off
     # Seconds over which each episode's first free frames take on the pinned frames' velocity
@@ -109,6 +118,7 @@ class LoopConfig:
     swing_clearance: bool = True   # the final solve keeps an unplanted foot from being pulled below its predicted height
 
     def __post_init__(self):
+        require_choice("loop.foot_height", self.foot_height, FOOT_HEIGHTS)
         if self.stall_s is not None and not 0 <= self.stall_s < float("inf"):
             raise ConfigError(f"loop.stall_s: expected seconds >= 0 (0 or null: off), got {self.stall_s}")
 
@@ -121,6 +131,7 @@ CLEANUP_STAGES: dict[str, dict] = {
     "projection": {"project": False},
     "seam_blend": {"seam_blend": 0.0},
     "foot_lock": {"foot_lock": False},
+    "foot_height": {"foot_height": "free"},
     "clearance": {"swing_clearance": False},
     "smoothing": {"smooth": 0.0},
     "hand_goal": {"hand_goal": ()},
@@ -129,7 +140,7 @@ CLEANUP_STAGES: dict[str, dict] = {
 }
 IN_LOOP_STAGES = ("projection", "seam_blend", "hand_goal")
 # The LoopConfig fields only the clean-up after the last episode reads.
-POST_LOOP_FIELDS = frozenset({"foot_lock", "swing_clearance", "smooth", "hand_actions", "seat_shift",
+POST_LOOP_FIELDS = frozenset({"foot_lock", "foot_height", "swing_clearance", "smooth", "hand_actions", "seat_shift",
                               "solve_smoothness", "solve"})
 
 
