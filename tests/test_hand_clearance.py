@@ -121,3 +121,31 @@ def test_an_object_with_its_exact_surface_is_measured_on_it_not_on_its_voxels(bm
     moved = verts + (depth + margin) * way
     assert grid.exact_surface.query(moved).distance.min() > 0.004                       # out, with the margin
     assert deepest(moved, fields)[0] == -1.0
+
+
+def test_a_hand_through_a_thin_plate_is_pushed_clear_of_it(bm):
+    """A 1 cm plate through the middle of the right hand (palm and fingers above and below
+    it): the deepest vertex is at most 5 mm in, and moving the hand by that leaves it through
+    the plate. The push grows until no vertex is inside (`clearing_step`): the body moved by
+    the new target's shift has its hand out, and the push is no longer than the hand is thick
+    plus a step."""
+    body = standing()
+    ids = {h: bm.part_vertices(h) for h in HAND_JOINTS}
+    verts = bm.motion_vertices(body, np.arange(T), ids[RIGHT]).reshape(-1, 3)
+    mid = 0.5 * (verts[:, 1].min() + verts[:, 1].max())
+    plate = trimesh.creation.box(extents=(0.4, 0.01, 0.4))
+    plate.apply_translation([verts[:, 0].min() + 0.1, mid, 0.0])
+    grid = voxelize_mesh(plate, voxel_size=0.01)
+    grid.exact_surface = MeshField(plate, voxel_size=0.005)
+    objects = [(grid, np.eye(4))]
+    fields = object_fields(objects)
+    depth, way, margin = deepest(verts, fields)
+    assert depth <= 0.0055 and abs(way[1]) > 0.99                                      # out through a face
+    assert deepest(verts + (depth + margin) * way, fields)[0] >= 0                     # the deepest vertex's push: still through
+    moved = push_out(body, wrist_target(bm, body), fields, ids, bm)
+    shift = moved[2][0] - wrist_target(bm, body)[2][0]
+    out = dataclasses.replace(body, transl=body.transl + shift)
+    out_verts = bm.motion_vertices(out, np.arange(T), ids[RIGHT]).reshape(-1, 3)
+    assert deepest(out_verts, fields)[0] == -1.0
+    thick = np.ptp(verts[:, 1])
+    assert np.linalg.norm(shift) < 1.5 * (thick / 2 + 0.005) + margin

@@ -25,6 +25,8 @@ ROUNDS = 3               # re-solves per sample at most
 # Past the surface by this much more than the depth: the grid's surface is exact to half a
 # voxel, the object's own surface somewhere inside that.
 EXTRA_MARGIN = 0.005     # m, beyond half a voxel
+GROWTH = 1.5             # a step that leaves the hand in the object grows by this much (`clearing_step`)
+MAX_PUSH = 0.15          # m: a hand is at most this far through an object (a palm and fingers)
 
 
 def settle_hands(bodies: list, reach: list, objects, bm, resolve: Callable[[int, tuple], object],
@@ -83,10 +85,11 @@ def push_out(body, reach: tuple, fields, ids: dict, bm) -> tuple | None:
     for h, vids in ids.items():
         verts = bm.motion_vertices(body, acting, vids)                                      # (F, K, 3)
         for i, f in enumerate(acting):
-            depth, way_out, margin = deepest(np.asarray(verts[i], np.float64), fields)
+            hand = np.asarray(verts[i], np.float64)                                        # (K, 3)
+            depth, way_out, margin = deepest(hand, fields)
             if depth < 0:
                 continue
-            target, changed = wrists[i, h] + (depth + margin) * way_out, True
+            target, changed = wrists[i, h] + clearing_step(hand, way_out, depth, margin, fields) * way_out, True
             if (int(f), h) in new:
                 points[new[int(f), h]], weights[new[int(f), h]] = target, 1.0
             else:
@@ -99,6 +102,18 @@ def push_out(body, reach: tuple, fields, ids: dict, bm) -> tuple | None:
         points = np.concatenate([points, [a[2] for a in add]])
         weights = np.concatenate([weights, np.ones(len(add))])
     return frames, joints, points, weights
+
+
+def clearing_step(hand: np.ndarray, way_out: np.ndarray, depth: float, margin: float, fields) -> float:
+    """How far (m) to move a hand's vertices (K, 3) along way_out (3,) for none to be inside
+    an object: the deepest vertex's depth and margin where that does it, else that step grown
+    by GROWTH until it does (at most MAX_PUSH). The deepest vertex alone says too little where
+    an object is thinner than the hand is deep in it: moved out of one face, the hand is still
+    through the object (a plate, a book)."""
+    step = depth + margin
+    while step < MAX_PUSH and deepest(hand + step * way_out, fields)[0] >= 0:
+        step *= GROWTH
+    return min(step, MAX_PUSH)
 
 
 def body_joints(bm, body, frames: np.ndarray) -> np.ndarray:
