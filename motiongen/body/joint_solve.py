@@ -69,25 +69,8 @@ def solve_joints(X: np.ndarray, cfg: RefineConfig, planted: np.ndarray | None = 
     bases = [feet if j in contact_joints else base for j in range(J)]     # (3, T) per joint
     diag = np.zeros((J, T))                             # reach and lock diagonals, per joint
     rhs = cfg.w_joints * X.transpose(1, 2, 0).copy()    # (J, 3, T)
-    locks: dict[int, tuple] = {}                        # joint -> (span indicator (T, k), weight w/n per span (k,))
     planted = None if planted is None else np.asarray(planted, bool)
-    if planted is not None and len(contact_joints) and cfg.w_contact and planted.any():
-        w = cfg.w_contact * n / planted.sum()
-        for c, j in enumerate(contact_joints):
-            spans = true_runs(planted[:, c])
-            if spans:
-                U = np.zeros((T, len(spans)))
-                for k, (a, b) in enumerate(spans):
-                    U[a:b, k] = 1.0
-                    diag[j, a:b] += w
-                locks[j] = (U, w / U.sum(0))
-    locks_y, held = locks, np.zeros((J, T))               # upwards: the lock, or a pull to held heights
-    if locks and cfg.lock_height:
-        H = X[:, list(contact_joints), 1] if planted_heights is None else np.asarray(planted_heights, np.float64)
-        for c, j in enumerate(contact_joints):
-            for a, b in true_runs(planted[:, c]):
-                held[j, a:b] = w * H[a:b, c].mean()
-        locks_y = {}
+    locks, locks_y, held = _lock_terms(X, cfg, planted, contact_joints, planted_heights, n, diag)
     if reach is not None and cfg.w_reach:
         f, jj, p, w = (np.asarray(a) for a in reach)
         w = cfg.w_reach * n * w.astype(np.float64) / max(float(w.sum()), 1e-9)
@@ -126,6 +109,32 @@ def solve_joints(X: np.ndarray, cfg: RefineConfig, planted: np.ndarray | None = 
         if not len(todo):
             break
     return Y
+
+
+def _lock_terms(X: np.ndarray, cfg: RefineConfig, planted: np.ndarray | None, contact_joints: list,
+                planted_heights: np.ndarray | None, n: int, diag: np.ndarray) -> tuple[dict, dict, np.ndarray]:
+    """The foot lock's parts of the systems of `solve_joints` (targets X (T, J, 3), n its joint
+    term's count): each lock span's weight added to `diag` (J, T) in place; returns (locks:
+    joint -> (span indicators (T, k), weight per span (k,)) for the rank-one parts across the
+    floor, the same upwards ({} where spans are held at a height: cfg.lock_height), the
+    held heights' right-hand side (J, T))."""
+    T, J = X.shape[:2]
+    locks: dict[int, tuple] = {}
+    held = np.zeros((J, T))
+    if planted is None or not len(contact_joints) or not cfg.w_contact or not planted.any():
+        return locks, locks, held
+    w = cfg.w_contact * n / planted.sum()
+    H = X[:, list(contact_joints), 1] if planted_heights is None else np.asarray(planted_heights, np.float64)
+    for c, j in enumerate(contact_joints):
+        spans = true_runs(planted[:, c])
+        if spans:
+            U = np.zeros((T, len(spans)))
+            for k, (a, b) in enumerate(spans):
+                U[a:b, k] = 1.0
+                diag[j, a:b] += w
+                held[j, a:b] = w * H[a:b, c].mean()
+            locks[j] = (U, w / U.sum(0))
+    return (locks, {}, held) if cfg.lock_height else (locks, locks, np.zeros((J, T)))
 
 
 def _dtd_banded(T: int) -> np.ndarray:
