@@ -127,22 +127,18 @@ def lock_loss(J: torch.Tensor, ids: torch.Tensor, n: int, joints, heights: torch
     P = J[:, list(joints)]                                                     # (T, C, 3)
     on = ids >= 0
     sel, idx = P[on], ids[on]                                                  # (N, 3), (N,)
-    sums = torch.zeros(n, 3, dtype=J.dtype, device=J.device).index_add_(0, idx, sel)
-    counts = torch.zeros(n, dtype=J.dtype, device=J.device).index_add_(0, idx, torch.ones_like(idx, dtype=J.dtype))
-    mean = sums / counts[:, None]                                              # (n, 3)
+    mean = span_means(sel, idx, n)                                             # (n, 3)
     if heights is not None:
         mean = torch.stack([mean[:, 0], heights.to(J.dtype), mean[:, 2]], -1)
     return (sel - mean[idx]).square().sum(-1).mean()
 
 
-def span_heights(ids: torch.Tensor, n: int, heights: torch.Tensor) -> torch.Tensor:
-    """(n,) the mean over each contact span of `heights` (T, C), one height per entry of the
-    span ids (T, C) of `contact_spans`."""
-    on = ids >= 0
-    idx = ids[on]
-    sums = torch.zeros(n, dtype=heights.dtype, device=heights.device).index_add_(0, idx, heights[on])
-    counts = torch.zeros(n, dtype=heights.dtype, device=heights.device).index_add_(0, idx, torch.ones_like(idx, dtype=heights.dtype))
-    return sums / counts
+def span_means(values: torch.Tensor, idx: torch.Tensor, n: int) -> torch.Tensor:
+    """(n, ...) the mean of values (N, ...) over the entries of each of n spans, idx (N,) the
+    span id of each entry (the planted entries of `contact_spans`' ids)."""
+    sums = torch.zeros((n, *values.shape[1:]), dtype=values.dtype, device=values.device).index_add_(0, idx, values)
+    counts = torch.zeros(n, dtype=values.dtype, device=values.device).index_add_(0, idx, torch.ones_like(idx, dtype=values.dtype))
+    return sums / counts.reshape(n, *[1] * (values.dim() - 1))
 
 
 def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_init: torch.Tensor,
@@ -240,8 +236,11 @@ def _contact_terms(cfg: RefineConfig, target: torch.Tensor, contact: torch.Tenso
     ct = _ContactTerms()
     if contact is not None and cfg.w_contact and bool(contact.any()):
         ids, n = contact_spans(contact)
-        held = target[:, list(contact_joints), 1] if planted_heights is None else planted_heights.to(target.dtype)
-        ct.lock = (ids, n, span_heights(ids, n, held) if cfg.lock_height else None)
+        held = None
+        if cfg.lock_height:
+            heights = target[:, list(contact_joints), 1] if planted_heights is None else planted_heights.to(target.dtype)
+            held = span_means(heights[ids >= 0], ids[ids >= 0], n)                    # (n,)
+        ct.lock = (ids, n, held)
     if contact is not None and cfg.w_clearance:
         ct.swing = (~contact.to(torch.bool)).to(target.dtype)                        # (T, C)
         ct.swing_j = torch.as_tensor(list(contact_joints), device=target.device)     # (C,)

@@ -132,9 +132,10 @@ def _lock_terms(X: np.ndarray, cfg: RefineConfig, planted: np.ndarray | None, co
             for k, (a, b) in enumerate(spans):
                 U[a:b, k] = 1.0
                 diag[j, a:b] += w
-                held[j, a:b] = w * H[a:b, c].mean()
+                if cfg.lock_height:
+                    held[j, a:b] = w * H[a:b, c].mean()
             locks[j] = (U, w / U.sum(0))
-    return (locks, {}, held) if cfg.lock_height else (locks, locks, np.zeros((J, T)))
+    return locks, {} if cfg.lock_height else locks, held
 
 
 def _dtd_banded(T: int) -> np.ndarray:

@@ -18,7 +18,7 @@ from motiongen.importers.sources import DataConfig
 from motiongen.loading.keys import CheckpointKeys
 from motiongen.sampling.assemble import SOLVE_METHODS
 from motiongen.sampling.sample_config import MAX_SAMPLES, check_sampler_settings
-from motiongen.sampling.settings import CLEANUP_STAGES, FOOT_HEIGHTS, SamplerSettings
+from motiongen.sampling.settings import CLEANUP_STAGES, LoopConfig, SamplerSettings
 
 
 # Denoising steps when `steps` is unset (a model trained by `train`): k samples x pairs x scenes x
@@ -131,8 +131,7 @@ def loop_overrides(loop) -> dict:
     out = {k: v for k, v in asdict(loop).items() if v is not None}
     if "solve" in out:
         require_choice("loop.solve", out["solve"], SOLVE_METHODS)
-    if "foot_height" in out:
-        require_choice("loop.foot_height", out["foot_height"], FOOT_HEIGHTS)
+    LoopConfig(**out)                                    # its own checks (loop.foot_height), up front
     for key, value in out.items():
         if isinstance(value, float) and value < 0:
             raise ConfigError(f"loop.{key}: expected a number >= 0, got {value:g}")
