@@ -8,7 +8,8 @@ import pytest
 import trimesh
 
 from motiongen.body.model import BodyParams
-from motiongen.sampling.hand_clearance import EXTRA_MARGIN, deepest, object_fields, push_out, settle_hands
+from motiongen.sampling.hand_clearance import (EXTRA_MARGIN, deepest, object_fields, push_out, settle_hands,
+                                               smooth_pushes)
 from motiongen.scene.distance_field import MeshField
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.scene.voxelize import voxelize_mesh
@@ -149,3 +150,56 @@ def test_a_hand_through_a_thin_plate_is_pushed_clear_of_it(bm):
     assert deepest(out_verts, fields)[0] == -1.0
     thick = np.ptp(verts[:, 1])
     assert np.linalg.norm(shift) < 1.5 * (thick / 2 + 0.005) + margin
+
+
+def test_smooth_pushes_fade_around_a_single_frame_and_keep_its_push():
+    """One frame inside among 21: it keeps its own push at full cover; the others get the
+    Gaussian's share of it, push and cover alike, fading to nothing; sigma 0 leaves the pushes
+    where they are."""
+    frames = np.arange(21)
+    push, inside = np.zeros((21, 3)), np.zeros(21, bool)
+    push[10], inside[10] = [0.04, 0.0, 0.0], True
+    out, cover = smooth_pushes(frames, push, inside, 3.0)
+    g = np.exp(-0.5 * ((frames - 10) / 3.0) ** 2)
+    assert np.allclose(out[:, 0], 0.04 * g) and np.allclose(out[:, 1:], 0) and np.allclose(cover, g)
+    assert np.abs(np.diff(out[:, 0])).max() < 0.04 * 0.2                  # no frame-to-frame jump of the push
+    raw, raw_cover = smooth_pushes(frames, push, inside, 0.0)
+    assert np.array_equal(raw, push) and np.array_equal(raw_cover, inside.astype(float))
+
+
+def test_smooth_pushes_give_every_inside_frame_at_least_its_push():
+    """A run of inside frames needing 2 and 6 cm in turn along the same way out: the smoothed
+    push is about the run's mean, topped up until each frame has what it needs, and still
+    changes by less than the alternation from one frame to the next."""
+    frames = np.arange(30)
+    inside = (frames >= 10) & (frames < 20)
+    push = np.zeros((30, 3))
+    push[inside, 2] = np.where(frames[inside] % 2, 0.06, 0.02)
+    out, cover = smooth_pushes(frames, push, inside, 3.0)
+    assert (out[inside, 2] >= push[inside, 2] - 1e-4).all() and (cover[inside] == 1).all()
+    assert np.abs(np.diff(out[:, 2])).max() < 0.02 and out[0, 2] < 0.005 and out[-1, 2] < 0.005
+
+
+def test_push_out_spreads_a_one_frame_push_to_its_neighbours(bm):
+    """The hand in the box on the middle frame only (the body 10 cm back on the others): with
+    sigma the middle frame's target moves by its push at full weight, as without, and the frames
+    beside it are pulled the same way by the Gaussian's share, their weight raised to it."""
+    n, sigma = 5, 1.5
+    body = standing()
+    body = BodyParams(np.zeros((n, 3)), np.zeros((n, 63)), np.repeat(body.transl[:1], n, 0), np.zeros(10))
+    objects = [box_over_fingers(bm, body)]
+    body.transl[[0, 1, 3, 4], 0] += 0.1                                                 # hand out of the box
+    fields = object_fields(objects)
+    ids = {h: bm.part_vertices(h) for h in HAND_JOINTS}
+    J = bm.joints(*[__import__("torch").as_tensor(x, dtype=__import__("torch").float32)
+                    for x in (body.global_orient, body.body_pose, body.transl)]).numpy().astype(np.float64)
+    reach = (np.arange(n), np.full(n, RIGHT), J[:, RIGHT], np.full(n, 0.5))
+    sharp = push_out(body, reach, fields, ids, bm)
+    smooth = push_out(body, reach, fields, ids, bm, sigma)
+    p = sharp[2][2] - J[2, RIGHT]                                                       # the middle frame's push
+    assert np.allclose(smooth[2][2], sharp[2][2], atol=1e-6) and smooth[3][2] == 1.0
+    assert np.array_equal(sharp[2][[0, 1, 3, 4]], reach[2][[0, 1, 3, 4]])              # without sigma: untouched
+    for f in (1, 3):
+        g = np.exp(-0.5 * (1 / sigma) ** 2)
+        assert np.allclose(smooth[2][f], J[f, RIGHT] + g * g * p, atol=1e-6) and smooth[3][f] == pytest.approx(g)
+    assert len(smooth[0]) == n                                                          # no target for the left hand

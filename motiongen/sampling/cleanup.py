@@ -16,7 +16,7 @@ from scipy.ndimage import gaussian_filter1d
 from motiongen.body.solve import SOLVE_CONFIG
 from motiongen.sampling.assemble import output_times, planted_at_output, resample, solve_bodies, solve_weights
 from motiongen.sampling.episode import EpisodeState
-from motiongen.sampling.hand_clearance import settle_hands
+from motiongen.sampling.hand_clearance import PUSH_SMOOTHING, settle_hands
 from motiongen.sampling.interactions import hand_targets, merge_targets, seat_shift
 from motiongen.sampling.progress import GoalPlan
 from motiongen.sampling.settings import LoopConfig
@@ -71,7 +71,8 @@ def clean_up(state: EpisodeState, layout, model_fps: float, plan: GoalPlan, loop
 
         bodies = solve(None, reach)
         bodies = settle_hands(bodies, reach, objects, state.body.bm,
-                              lambda s, r: solve([s], [r if i == s else None for i in range(len(reach))])[0])
+                              lambda s, r: solve([s], [r if i == s else None for i in range(len(reach))])[0],
+                              sigma=PUSH_SMOOTHING[loop.solve] * loop.out_fps)
         out = np.stack([b.joints for b in bodies])
     return CleanMotion(out, raw_out, planted, labels, bodies, model_joints)
 

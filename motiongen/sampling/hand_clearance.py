@@ -7,7 +7,9 @@ vertices against every placed object (its exact surface where its grid carries o
 and `evaluate` give it; else its voxels, whose surface is off by up to half a voxel: 1 cm at
 2 cm voxels, most of a hand's depth in a cup); where the deepest one is inside, the target
 moves by that depth plus a margin along that vertex's way out, and the sample is solved again
-(at most `ROUNDS` times).
+(at most `ROUNDS` times). The pushes are spread over the neighbouring frames (`smooth_pushes`):
+a hand inside on one frame and not on the next would otherwise get a target that jumps by
+centimetres from one frame to the next, which the solve follows as a wrist shaking at 10-15 Hz.
 """
 
 from __future__ import annotations
@@ -27,14 +29,23 @@ ROUNDS = 3               # re-solves per sample at most
 EXTRA_MARGIN = 0.005     # m, beyond half a voxel
 GROWTH = 1.5             # a step that leaves the hand in the object grows by this much (`clearing_step`)
 MAX_PUSH = 0.15          # m: a hand is at most this far through an object (a palm and fingers)
+# Time over which a push fades in and out around the frames that need it (the Gaussian's sigma),
+# per final solve: a hand takes about a tenth of a second to move a few centimetres out of an
+# object. The joint-space solve puts a wrist on its target exactly, so per-frame pushes shook it
+# at 10-15 Hz; the L-BFGS solve's rotation terms filter them already, and spreading them there
+# cost contact and left more hands inside (docs/results.md, "Hand pushes in time").
+PUSH_SMOOTHING = {"lbfgs": 0.0, "joint-space": 0.1}     # s
+# Frames whose push has faded below this share of full weight get no target of their own.
+PUSH_CUTOFF = 0.01
 
 
 def settle_hands(bodies: list, reach: list, objects, bm, resolve: Callable[[int, tuple], object],
-                 rounds: int | None = None) -> list:
+                 rounds: int | None = None, sigma: float = 0.0) -> list:
     """bodies: one solved BodyMotion per sample; reach: per sample the final solve's targets
     (frames, joints, points, weights) or None; objects [(OccupancyGrid, pose (4, 4))]; bm the
-    body model; resolve(s, reach) solves sample s again with new targets. Returns the bodies,
-    those whose hands were in an object solved again (`reach` is updated in place)."""
+    body model; resolve(s, reach) solves sample s again with new targets; sigma (frames): how
+    far the pushes spread in time (`push_out`; PUSH_SMOOTHING times the frame rate). Returns the
+    bodies, those whose hands were in an object solved again (`reach` is updated in place)."""
     rounds = ROUNDS if rounds is None else rounds             # read here: benchmarks set ROUNDS = 0
     if not objects or not rounds:
         return bodies
@@ -43,7 +54,7 @@ def settle_hands(bodies: list, reach: list, objects, bm, resolve: Callable[[int,
     out = list(bodies)
     for s, r in enumerate(reach):
         for _ in range(rounds if r is not None else 0):
-            moved = push_out(out[s], r, fields, ids, bm)
+            moved = push_out(out[s], r, fields, ids, bm, sigma)
             if moved is None:
                 break
             reach[s] = r = moved
@@ -69,12 +80,14 @@ def object_fields(objects) -> list:
     return out
 
 
-def push_out(body, reach: tuple, fields, ids: dict, bm) -> tuple | None:
+def push_out(body, reach: tuple, fields, ids: dict, bm, sigma: float = 0.0) -> tuple | None:
     """The targets with every hand-action frame where a hand is inside an object moved: that
     frame's target for that hand becomes the wrist where the solve put it, moved by the depth
-    plus a margin along the deepest vertex's way out, at full weight — a ramp frame too (the
-    network's hand may pass through the object on its way there), and the other hand too (it
-    gets a target on those frames). None when no hand is in an object."""
+    plus a margin along the deepest vertex's way out (`clearing_step`), at full weight — a ramp
+    frame too (the network's hand may pass through the object on its way there), and the other
+    hand too (it gets a target on those frames). sigma > 0 (frames): the pushes fade in and out
+    over the neighbouring frames (`smooth_pushes`) instead of stopping at the frames that need
+    them. None when no hand is in an object."""
     frames, joints, points, weights = reach
     acting = np.unique(frames[np.isin(joints, list(ids))])                                  # frames of a hand action
     if not len(acting):
@@ -84,24 +97,66 @@ def push_out(body, reach: tuple, fields, ids: dict, bm) -> tuple | None:
     points, weights, add, changed = np.array(points, np.float64), np.array(weights, np.float64), [], False
     for h, vids in ids.items():
         verts = bm.motion_vertices(body, acting, vids)                                      # (F, K, 3)
-        for i, f in enumerate(acting):
+        push, inside = np.zeros((len(acting), 3)), np.zeros(len(acting), bool)
+        for i in range(len(acting)):
             hand = np.asarray(verts[i], np.float64)                                        # (K, 3)
             depth, way_out, margin = deepest(hand, fields)
-            if depth < 0:
-                continue
-            target, changed = wrists[i, h] + clearing_step(hand, way_out, depth, margin, fields) * way_out, True
-            if (int(f), h) in new:
-                points[new[int(f), h]], weights[new[int(f), h]] = target, 1.0
+            if depth >= 0:
+                push[i], inside[i] = clearing_step(hand, way_out, depth, margin, fields) * way_out, True
+        if not inside.any():
+            continue
+        changed = True
+        push, cover = smooth_pushes(acting, push, inside, sigma)                            # (F, 3), (F,)
+        for i in np.flatnonzero(cover >= PUSH_CUTOFF):
+            f, target = int(acting[i]), wrists[i, h] + push[i]
+            if (f, h) in new:
+                k = new[f, h]
+                points[k] = (1 - cover[i]) * points[k] + cover[i] * target
+                weights[k] = max(weights[k], cover[i])
             else:
-                add.append((f, h, target))
+                add.append((f, h, target, cover[i]))
     if not changed:
         return None
     if add:
         frames = np.concatenate([frames, [a[0] for a in add]])
         joints = np.concatenate([joints, [a[1] for a in add]])
         points = np.concatenate([points, [a[2] for a in add]])
-        weights = np.concatenate([weights, np.ones(len(add))])
+        weights = np.concatenate([weights, [a[3] for a in add]])
     return frames, joints, points, weights
+
+
+def smooth_pushes(frames: np.ndarray, push: np.ndarray, inside: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pushes (F, 3) needed on the `inside` frames (F,) bool of `frames` (F,) int, spread over
+    time: (pushes (F, 3), cover (F,) in [0, 1]). With Gaussian weights g over the frame distance
+    (sigma frames) to each inside frame, cover = 1 − Π(1 − g): 1 on an inside frame, fading out
+    smoothly away from them, the weight a frame's target gets; a frame's push is cover times
+    the g-weighted mean of the inside frames' pushes: an inside frame alone keeps its own push,
+    a run of them their local mean. Where that mean falls short of a frame's own push along its
+    way out, what is missing is added the same way over the frames still short, a few rounds.
+    sigma = 0: the pushes where they are."""
+    if sigma <= 0:
+        return np.where(inside[:, None], push, 0.0), inside.astype(np.float64)
+    d = frames[:, None] - frames[inside][None, :]                                           # (F, n)
+    g = np.exp(-0.5 * (d / sigma) ** 2)
+    need = np.linalg.norm(push[inside], axis=-1)                                           # (n,)
+    way = push[inside] / np.maximum(need, 1e-12)[:, None]
+    out = _spread(g, push[inside])
+    for _ in range(SMOOTH_ROUNDS):
+        missing = np.maximum(need - (out[inside] * way).sum(-1), 0.0)                      # (n,)
+        short = missing > 1e-4
+        if not short.any():
+            break
+        out += _spread(g[:, short], missing[short, None] * way[short])
+    return out, 1.0 - np.prod(1.0 - g, axis=1)
+
+
+def _spread(g: np.ndarray, push: np.ndarray) -> np.ndarray:
+    """(F, 3): cover (1 − Π(1 − g) over g's columns) times the g-weighted mean of push (n, 3)."""
+    cover = 1.0 - np.prod(1.0 - g, axis=1)                                                 # (F,)
+    return cover[:, None] * (g @ push) / np.maximum(g.sum(1), 1e-12)[:, None]
+
+
+SMOOTH_ROUNDS = 8     # top-ups of `smooth_pushes`
 
 
 def clearing_step(hand: np.ndarray, way_out: np.ndarray, depth: float, margin: float, fields) -> float:
