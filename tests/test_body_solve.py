@@ -7,6 +7,7 @@ import torch
 from motiongen.body.random_motion import sample_motion
 from motiongen.body.solve import MotionBody
 from motiongen.metrics import bone_consistency, grounded_slide
+from motiongen.sampling.assemble import solve_bodies
 from motiongen.skeleton import BODY, BODY_PARENTS, FOOT_JOINTS, JOINT_SETS
 
 
@@ -52,13 +53,17 @@ def test_index_fingers_ride_on_the_wrists(bm):
 
 
 def _solve(body, method, X, R, planted, cfg=None):
-    """The final solve of sample 0 by either method (`assemble.SOLVE_METHODS`)."""
+    """The final solve of sample 0 by each method (`assemble.SOLVE_METHODS`); `refined` as the
+    sampler runs it, at one frame rate (no resampling)."""
     if method == "lbfgs":
         return body.solve(0, X, R, planted, FOOT_JOINTS, cfg=cfg)
+    if method == "refined":
+        return solve_bodies(body, X[None], R[None], None if planted is None else planted[None], FOOT_JOINTS,
+                            30.0, 30.0, cfg=cfg, method="refined")[0]
     return body.solve_joint_space(0, X, R, planted, FOOT_JOINTS, cfg=cfg)
 
 
-METHODS = pytest.mark.parametrize("method", ["joint-space", "lbfgs"])
+METHODS = pytest.mark.parametrize("method", ["joint-space", "lbfgs", "refined"])
 
 
 @METHODS

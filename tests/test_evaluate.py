@@ -243,7 +243,7 @@ def test_several_checkpoints_average_the_ablation_rows_too():
     (["ablate=[foot_lock,nope]"], "ablate: expected one of projection, seam_blend, foot_lock"),
     (["ablation_pairs=-1"], "ablation_pairs: expected an integer >= 0"),
     (["loop.seat_shift=maybe"], "loop.seat_shift: expected true or false"),
-    (["loop.solve=newton"], "loop.solve: expected one of lbfgs, joint-space"),
+    (["loop.solve=newton"], "loop.solve: expected one of lbfgs, joint-space, refined"),
 ])
 def test_evaluate_user_errors(ckpt, tmp_path, args, needle, capsys):
     if "data.root=NOTEST" in args:

@@ -116,7 +116,7 @@ BAD = {
     "goal_far": (["goals=[[1e300,0.0]]"], "goals[0]: expected a point [x, z] of two numbers within"),
     "negative_duration": (["goals=[[1.5,-1.0]]", "durations=[-5]"], "durations[0]: expected a number >= 0"),
     "scene_up": (["goals=[[1.5,-1.0]]", "scene_up=x"], "scene_up: expected one of y, z"),
-    "bad_solve": (["goals=[[1.5,-1.0]]", "loop.solve=newton"], "loop.solve: expected one of lbfgs, joint-space"),
+    "bad_solve": (["goals=[[1.5,-1.0]]", "loop.solve=newton"], "loop.solve: expected one of lbfgs, joint-space, refined"),
     "bad_foot_height": (["goals=[[1.5,-1.0]]", "loop.foot_height=floor"], "loop.foot_height: expected one of network, body, free"),
     "scene_in_cm": (["goals=[[1.5,-1.0]]", "scene={dir}/room_cm.obj"], "use scene_unit=cm"),
 }

@@ -124,7 +124,7 @@ class Garbage(nn.Module):
         return self.diffusion.eps_from_x0(x_t, x0, t)
 
 
-@pytest.mark.parametrize("solve", ["lbfgs", "joint-space"])
+@pytest.mark.parametrize("solve", ["lbfgs", "joint-space", "refined"])
 def test_one_body_across_seams_whatever_the_network_predicts(solve):
     with pytest.warns(UserWarning, match="max_episodes"):
         m = _generate(_loaded(Garbage), [Goal([0.0, 3.0])], num_samples=2,
@@ -254,7 +254,7 @@ def test_stall_rule():
     assert (best[0], moved[0]) == (1.89, 30)
 
 
-@pytest.mark.parametrize("solve", ["lbfgs", "joint-space"])
+@pytest.mark.parametrize("solve", ["lbfgs", "joint-space", "refined"])
 def test_the_clean_up_in_the_loop_seats_the_body_among_placed_objects(solve):
     """The whole loop with the clean-up on, in a scene with a seat, and a cup placed on a table:
     while sitting the pelvis is `seat_offset` above the seat top; no wrist ever enters the cup.

@@ -4,6 +4,7 @@ body solve (one body, planted feet locked; `motiongen.body.solve`)."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -11,6 +12,7 @@ from scipy.interpolate import CubicSpline
 
 from motiongen.body.analytic import analytic_init
 from motiongen.body.rotations import matrix_to_quaternion, quaternion_to_matrix
+from motiongen.body.solve import SOLVE_CONFIG
 from motiongen.checks import require_choice
 from motiongen.skeleton import NUM_BODY_JOINTS
 from motiongen.spans import true_runs
@@ -63,9 +65,18 @@ JOINT_SPACE_SMOOTHING = 10.0
 JOINT_SPACE_FEET_SMOOTHING = 400.0
 
 
+# `loop.solve=refined`: L-BFGS steps from the joint-space solve's result. 80 steps from the
+# analytic start stop short of the minimum with the pelvis shaking at 4-8 Hz (twice the data's
+# acceleration; the walk reads 27° off its travel where its facing is the network's); from the
+# joint-space result 40 steps end nearer it (docs/results.md, "The final solve from the
+# joint-space result").
+REFINED_STEPS = 40
+
+
 def solve_weights(method: str, model_fps: float, smoothness: float | None) -> dict:
     """The final solve's acceleration weights for `method` (RefineConfig fields): smoothness
-    (`loop.solve_smoothness`) the body's, None: by method and model rate."""
+    (`loop.solve_smoothness`) the body's, None: by method and model rate. `refined`: those of
+    its L-BFGS steps (its joint-space start takes `joint-space`'s by model rate)."""
     if method == "joint-space":
         w = JOINT_SPACE_SMOOTHING if smoothness is None else float(smoothness)
         return {"w_smooth_joints": w, "w_smooth_contact": max(w, JOINT_SPACE_FEET_SMOOTHING)}
@@ -132,28 +143,36 @@ def solve_bodies(body, joints: np.ndarray, rot_model: torch.Tensor, planted: np.
     projected frames), rot_model (S, Tm, 22, 3, 3) the episodes' rotations (twist hints),
     planted (S, T, C) or None, reach: per sample a `reach_targets` tuple or None, cfg: the
     solve's RefineConfig (None: body.solve.SOLVE_CONFIG), samples: which to solve (None: all),
-    method: "lbfgs" (`MotionBody.solve`: 80 L-BFGS iterations over the rotations) or
+    method: "lbfgs" (`MotionBody.solve`: 80 L-BFGS iterations over the rotations),
     "joint-space" (`MotionBody.solve_joint_space`: the objective's minimum in joint space in
-    closed form, then the analytic fit), planted_heights (S, T, C) or None: the heights the foot
-    lock holds the contact joints at (`fit.refine`; None: those of `joints`). Returns one `BodyMotion` per sample solved."""
+    closed form, then the analytic fit) or "refined" (REFINED_STEPS L-BFGS iterations from the
+    joint-space result; cfg holds those iterations' weights), planted_heights (S, T, C) or None:
+    the heights the foot lock holds the contact joints at (`fit.refine`; None: those of
+    `joints`). Returns one `BodyMotion` per sample solved."""
     require_choice("loop.solve", method, SOLVE_METHODS)
+    cfg = cfg if cfg is not None else SOLVE_CONFIG
     t_out, near = output_times(rot_model.shape[1], model_fps, out_fps)
     out = []
     for s in range(joints.shape[0]) if samples is None else samples:
         p = None if planted is None else planted[s]
         r = None if reach is None else reach[s]
         h = None if planted_heights is None else planted_heights[s]
-        if method == "joint-space":
+        if method != "lbfgs":
             hint = interpolate_rotations(rot_model[s], model_fps, t_out)                   # (T, 22, 3, 3)
-            out.append(body.solve_joint_space(s, joints[s], hint, p, contact_joints, cfg=cfg, reach=r, planted_heights=h))
-            continue
-        X = torch.as_tensor(joints[s, :, :NUM_BODY_JOINTS], dtype=body.rest.dtype)        # (T, 22, 3)
-        R0 = analytic_init(X, body.rest[s], rot_model[s, near].to(X.dtype))              # (T, 22, 3, 3)
-        out.append(body.solve(s, joints[s], R0, p, contact_joints, cfg=cfg, reach=r, planted_heights=h))
+            exact = cfg if method == "joint-space" else replace(cfg, **solve_weights("joint-space", model_fps, None))
+            start = body.solve_joint_space(s, joints[s], hint, p, contact_joints, cfg=exact, reach=r, planted_heights=h)
+            if method == "joint-space":
+                out.append(start)
+                continue
+            R0, cfg_s = torch.as_tensor(start.rotmats, dtype=body.rest.dtype), replace(cfg, max_steps=REFINED_STEPS)
+        else:
+            X = torch.as_tensor(joints[s, :, :NUM_BODY_JOINTS], dtype=body.rest.dtype)    # (T, 22, 3)
+            R0, cfg_s = analytic_init(X, body.rest[s], rot_model[s, near].to(X.dtype)), cfg   # (T, 22, 3, 3)
+        out.append(body.solve(s, joints[s], R0, p, contact_joints, cfg=cfg_s, reach=r, planted_heights=h))
     return out
 
 
-SOLVE_METHODS = ("lbfgs", "joint-space")
+SOLVE_METHODS = ("lbfgs", "joint-space", "refined")
 
 
 def interpolate_rotations(R: torch.Tensor, fps: float, t: np.ndarray) -> torch.Tensor:

@@ -31,10 +31,10 @@ GROWTH = 1.5             # a step that leaves the hand in the object grows by th
 MAX_PUSH = 0.15          # m: a hand is at most this far through an object (a palm and fingers)
 # Time over which a push fades in and out around the frames that need it (the Gaussian's sigma),
 # per final solve: a hand takes about a tenth of a second to move a few centimetres out of an
-# object. The joint-space solve puts a wrist on its target exactly, so per-frame pushes shook it
-# at 10-15 Hz; the L-BFGS solve's rotation terms filter them already, and spreading them there
+# object. The joint-space solve (and `refined`, which starts from it) puts a wrist on its target
+# exactly, so per-frame pushes shook it at 10-15 Hz; the L-BFGS solve's rotation terms filter them already, and spreading them there
 # cost contact and left more hands inside (docs/results.md, "Hand pushes in time").
-PUSH_SMOOTHING = {"lbfgs": 0.0, "joint-space": 0.1}     # s
+PUSH_SMOOTHING = {"lbfgs": 0.0, "joint-space": 0.1, "refined": 0.1}     # s
 # Frames whose push has faded below this share of full weight get no target of their own.
 PUSH_CUTOFF = 0.01
 

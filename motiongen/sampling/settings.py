@@ -95,10 +95,12 @@ class LoopConfig:
     # solve's swing clearance the 10 fps models gain from it as the 15 fps demo does (docs/quality.md).
     seam_blend: float | None = 0.6
     solve_smoothness: float | None = None  # final solve's joint-acceleration weight; None = by model rate (assemble.solve_smoothness_for_rate)
-    # How the final solve is solved: lbfgs (80 L-BFGS iterations over the rotations) or
+    # How the final solve is solved: lbfgs (80 L-BFGS iterations over the rotations),
     # joint-space (the objective's minimum in joint space in closed form, then put on the body
     # analytically; body/joint_solve.py): ~20x faster, the feet planted better, but further
-    # from the data's motion spectrum (PSKL) on the validation scenes (docs/results.md).
+    # from the data's motion spectrum (PSKL) in the dynamic setting, or refined (40 L-BFGS
+    # iterations from the joint-space result): a straighter, smoother walk but goals reached
+    # less closely (docs/results.md).
     solve: str = "lbfgs"
     # Actions done with a hand on the nearest placed object: the final solve puts the nearer
     # hand on it over the frames so labelled. () leaves hands where the network put them.
