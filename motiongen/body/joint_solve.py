@@ -216,6 +216,33 @@ def into_reach(Y: np.ndarray, reach: np.ndarray, held: np.ndarray, sigma: float)
     return out
 
 
+def follow_locks(Y: np.ndarray, X: np.ndarray, planted: np.ndarray | None, contact_joints, sigma: float) -> np.ndarray:
+    """Y (T, 22, 3) with the trunk moved across the floor, frame by frame, by the planted
+    contact joints' moves from their targets X to where the lock holds them (Y), summed and
+    divided by the number of contact joints (both feet held: their mean move; one foot: half
+    of it, the other leg stays free), smoothed over time (Gaussian, sigma frames).
+
+    The lock holds a planted foot at its span's mean; the network's "planted" foot often
+    slides (30-50 cm over a stance that runs from the arrival at a goal through a sit), so the
+    lock moves it 20-35 cm from where the network had it. The rotation solve's rigid legs
+    carry the trunk along with the held foot; the joint-space solve moved only the foot (the
+    trunk kept its target, `into_reach` acts only beyond the leg's length), which left the
+    body 2-4 cm farther from its goals at the arrival frame than `solve` (val scenes 71-75:
+    `solve` without the lock 0.140 m, with it 0.099 m; the joint-space solve 0.151 m)."""
+    if planted is None or not len(contact_joints):
+        return Y
+    P = np.asarray(planted, bool)
+    cj = list(contact_joints)
+    d = (Y[:, cj] - X[:, cj])[..., [0, 2]] * P[..., None]                              # (T, C, 2)
+    shift = np.zeros((Y.shape[0], 3))
+    shift[:, [0, 2]] = d.sum(1) / len(cj)                                               # 0 where none planted
+    if sigma > 0:
+        shift = gaussian_filter1d(shift, sigma, axis=0, mode="nearest")
+    out = Y.copy()
+    out[:, list(TRUNK)] += shift[:, None]
+    return out
+
+
 def _reach_shift(Y: np.ndarray, reach: np.ndarray, held: np.ndarray, shift: np.ndarray) -> np.ndarray:
     """shift (T, 3) moved on by cyclic projections onto the held limbs' reach constraints, each
     linearised along its root-end line."""

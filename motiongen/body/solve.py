@@ -32,7 +32,7 @@ from scipy.optimize import least_squares
 
 from motiongen.body.analytic import posed_joints, swing
 from motiongen.body.fit import FitResult, RefineConfig, refine
-from motiongen.body.joint_solve import held_limbs, into_reach, solve_joints
+from motiongen.body.joint_solve import follow_locks, held_limbs, into_reach, solve_joints
 from motiongen.body.limbs import limb_lengths, place_limbs
 from motiongen.body.model import BodyModel, BodyParams, forward_kinematics
 from motiongen.body.rotations import matrix_to_axis_angle
@@ -180,6 +180,8 @@ class MotionBody:
         cfg = cfg if cfg is not None else SOLVE_CONFIG
         X = np.asarray(joints[:, :NUM_BODY_JOINTS], np.float64)
         Y = solve_joints(X, cfg, planted, contact_joints, reach, planted_heights)               # (T, 22, 3)
+        # the trunk follows the held feet as the rigid legs of `solve` carry it (follow_locks)
+        Y = follow_locks(Y, X, planted if cfg.w_contact else None, contact_joints, TRUNK_SHIFT_SMOOTHING)
         T = Y.shape[0]
         lengths = limb_lengths(self.rest[sample].double()).numpy()                              # (4,)
         Y = into_reach(Y, lengths, held_limbs(T, reach), TRUNK_SHIFT_SMOOTHING)
