@@ -219,3 +219,28 @@ def test_into_reach_brings_the_hips_to_a_far_planted_foot(bm):
     assert moved[0, 0] < 3e-3 and moved[-1, 0] < 3e-3                                  # and only around the span
     step = np.linalg.norm(np.diff(out[:, 0], axis=0), axis=-1)
     assert step.max() < 0.06                                                           # eased in, not a 12 cm jump
+
+
+def test_follow_locks_moves_the_trunk_by_the_held_feet_moves():
+    """Known answer: where both feet of a standing body are held 10 cm from their targets the
+    trunk moves by that mean across the floor; where only one foot joint pair is held, by
+    half; where none is, not at all; limbs' middles and ends stay where the solve put them."""
+    from motiongen.body.joint_solve import TRUNK, follow_locks
+    from motiongen.skeleton import FOOT_JOINTS
+
+    T = 9
+    X = np.zeros((T, 22, 3))
+    Y = X.copy()
+    Y[:, list(FOOT_JOINTS), 0] += 0.1                                  # the lock moved every foot joint 10 cm in x
+    planted = np.zeros((T, 4), bool)
+    planted[:3] = True                                                 # both feet held
+    planted[3:6, :2] = True                                            # the left foot only
+    out = follow_locks(Y, X, planted, FOOT_JOINTS, 0.0)
+    trunk = list(TRUNK)
+    np.testing.assert_allclose(out[:3][:, trunk, 0], 0.1)
+    np.testing.assert_allclose(out[3:6][:, trunk, 0], 0.05)
+    np.testing.assert_allclose(out[6:][:, trunk], 0.0)
+    np.testing.assert_allclose(out[:, trunk, 1:], 0.0)                 # nothing up or sideways
+    others = [j for j in range(22) if j not in TRUNK]
+    np.testing.assert_array_equal(out[:, others], Y[:, others])
+    assert follow_locks(Y, X, None, FOOT_JOINTS, 3.0) is Y
