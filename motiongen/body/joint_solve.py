@@ -23,9 +23,10 @@ until the set stops changing (7-9 solves of the heights of the joints whose set 
 sampled motions). The minimum is exact where L-BFGS stops early, so the sampler gives this
 solve its own, weaker acceleration weights (`sampling.assemble.solve_weights`).
 
-`solve.MotionBody.solve_joint_space` then moves the trunk where a held limb's end is out of its
-reach (`into_reach`) and puts the result on the body analytically (bone directions, two-bone
-limbs: ankles, wrists and pelvis go where this solve put them). The rotation terms of `refine`
+`solve.MotionBody.solve_joint_space` then moves the trunk with the feet the lock holds
+(`follow_locks`) and where a held limb's end is out of its reach (`into_reach`), and puts the
+result on the body analytically (bone directions, two-bone limbs: ankles, wrists and pelvis go
+where this solve put them). The rotation terms of `refine`
 (rotation acceleration, prior) have no joint-space form: the twist comes from the episodes'
 rotations, interpolated.
 """
