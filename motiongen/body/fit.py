@@ -239,7 +239,8 @@ def _contact_terms(cfg: RefineConfig, target: torch.Tensor, contact: torch.Tenso
         held = None
         if cfg.lock_height:
             heights = target[:, list(contact_joints), 1] if planted_heights is None else planted_heights.to(target.dtype)
-            held = span_means(heights[ids >= 0], ids[ids >= 0], n)                    # (n,)
+            on = ids >= 0
+            held = span_means(heights[on], ids[on], n)                                 # (n,)
         ct.lock = (ids, n, held)
     if contact is not None and cfg.w_clearance:
         ct.swing = (~contact.to(torch.bool)).to(target.dtype)                        # (T, C)

@@ -7,9 +7,10 @@ vertices against every placed object (its exact surface where its grid carries o
 and `evaluate` give it; else its voxels, whose surface is off by up to half a voxel: 1 cm at
 2 cm voxels, most of a hand's depth in a cup); where the deepest one is inside, the target
 moves by that depth plus a margin along that vertex's way out, and the sample is solved again
-(at most `ROUNDS` times). The pushes are spread over the neighbouring frames (`smooth_pushes`):
-a hand inside on one frame and not on the next would otherwise get a target that jumps by
-centimetres from one frame to the next, which the solve follows as a wrist shaking at 10-15 Hz.
+(at most `ROUNDS` times). For a solve that puts a wrist on its target exactly, the pushes are
+spread over the neighbouring frames (`smooth_pushes`, `PUSH_SMOOTHING`): a hand inside on one
+frame and not on the next would otherwise get a target that jumps by centimetres from one
+frame to the next, which such a solve follows as a wrist shaking at 10-15 Hz.
 """
 
 from __future__ import annotations
@@ -32,8 +33,9 @@ MAX_PUSH = 0.15          # m: a hand is at most this far through an object (a pa
 # Time over which a push fades in and out around the frames that need it (the Gaussian's sigma),
 # per final solve: a hand takes about a tenth of a second to move a few centimetres out of an
 # object. The joint-space solve (and `refined`, which starts from it) puts a wrist on its target
-# exactly, so per-frame pushes shook it at 10-15 Hz; the L-BFGS solve's rotation terms filter them already, and spreading them there
-# cost contact and left more hands inside (docs/results.md, "Hand pushes in time").
+# exactly, so per-frame pushes shook it at 10-15 Hz; the L-BFGS solve's rotation terms filter
+# them already, and spreading them there cost contact and left more hands inside
+# (docs/results.md, "Hand pushes in time").
 PUSH_SMOOTHING = {"lbfgs": 0.0, "joint-space": 0.1, "refined": 0.1}     # s
 # Frames whose push has faded below this share of full weight get no target of their own.
 PUSH_CUTOFF = 0.01
@@ -140,20 +142,21 @@ def smooth_pushes(frames: np.ndarray, push: np.ndarray, inside: np.ndarray, sigm
     g = np.exp(-0.5 * (d / sigma) ** 2)
     need = np.linalg.norm(push[inside], axis=-1)                                           # (n,)
     way = push[inside] / np.maximum(need, 1e-12)[:, None]
-    out = _spread(g, push[inside])
+    out, cover = _spread(g, push[inside])
     for _ in range(SMOOTH_ROUNDS):
         missing = np.maximum(need - (out[inside] * way).sum(-1), 0.0)                      # (n,)
         short = missing > 1e-4
         if not short.any():
             break
-        out += _spread(g[:, short], missing[short, None] * way[short])
-    return out, 1.0 - np.prod(1.0 - g, axis=1)
+        out += _spread(g[:, short], missing[short, None] * way[short])[0]
+    return out, cover
 
 
-def _spread(g: np.ndarray, push: np.ndarray) -> np.ndarray:
-    """(F, 3): cover (1 − Π(1 − g) over g's columns) times the g-weighted mean of push (n, 3)."""
+def _spread(g: np.ndarray, push: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(cover (F,) times the g-weighted mean of push (n, 3): (F, 3), cover = 1 − Π(1 − g) over
+    g's columns (F,))."""
     cover = 1.0 - np.prod(1.0 - g, axis=1)                                                 # (F,)
-    return cover[:, None] * (g @ push) / np.maximum(g.sum(1), 1e-12)[:, None]
+    return cover[:, None] * (g @ push) / np.maximum(g.sum(1), 1e-12)[:, None], cover
 
 
 SMOOTH_ROUNDS = 8     # top-ups of `smooth_pushes`

@@ -99,8 +99,8 @@ class LoopConfig:
     # joint-space (the objective's minimum in joint space in closed form, then put on the body
     # analytically; body/joint_solve.py): ~20x faster, the feet planted better, but further
     # from the data's motion spectrum (PSKL) in the dynamic setting, or refined (40 L-BFGS
-    # iterations from the joint-space result): a straighter, smoother walk but goals reached
-    # less closely (docs/results.md).
+    # iterations from the joint-space result): a straighter, smoother walk, but more hands
+    # inside what they pick up on the quality checkpoints (docs/results.md).
     solve: str = "lbfgs"
     # Actions done with a hand on the nearest placed object: the final solve puts the nearer
     # hand on it over the frames so labelled. () leaves hands where the network put them.
