@@ -8,8 +8,8 @@ import pytest
 import trimesh
 
 from motiongen.body.model import BodyParams
-from motiongen.sampling.hand_clearance import (EXTRA_MARGIN, deepest, object_fields, push_out, settle_hands,
-                                               smooth_pushes)
+from motiongen.sampling.hand_clearance import (EXTRA_MARGIN, clearing_push, deepest, object_fields, push_out,
+                                               settle_hands, smooth_pushes)
 from motiongen.scene.distance_field import MeshField
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.scene.voxelize import voxelize_mesh
@@ -150,6 +150,33 @@ def test_a_hand_through_a_thin_plate_is_pushed_clear_of_it(bm):
     assert deepest(out_verts, fields)[0] == -1.0
     thick = np.ptp(verts[:, 1])
     assert np.linalg.norm(shift) < 1.5 * (thick / 2 + 0.005) + margin
+
+
+def test_a_hand_over_an_edge_moves_along_the_mean_way_out(bm):
+    """A box's edge through the right hand: the fingertips 4 cm in through its side (+x face),
+    the palm's lower half 1 cm below its top. Each inside vertex's way out is its nearest
+    face's normal and its depth the distance to it (a box's closed form); the push is along
+    their depth-weighted mean (within the exact surface's error; the deepest vertex's way is
+    13° off it) and takes every vertex out."""
+    body = standing()
+    verts = np.asarray(bm.motion_vertices(body, slice(0, 1), bm.part_vertices(RIGHT))[0], np.float64)   # (K, 3)
+    lo = np.array([verts[:, 0].min() - 0.2, 0.0, -0.2])
+    hi = np.array([verts[:, 0].min() + 0.04, np.median(verts[:, 1]) + 0.01, 0.2])
+    box = trimesh.creation.box(extents=hi - lo)
+    box.apply_translation(0.5 * (lo + hi))
+    grid = voxelize_mesh(box, voxel_size=0.02)
+    grid.exact_surface = MeshField(box, voxel_size=0.005)
+    fields = object_fields([(grid, np.eye(4))])
+    inside = np.all((verts > lo) & (verts < hi), 1)
+    gaps = np.concatenate([verts[inside] - lo, hi - verts[inside]], 1)                   # (n, 6) to each face
+    normals = np.concatenate([-np.eye(3), np.eye(3)])                                    # (6, 3) outward
+    face = gaps.argmin(1)
+    mean = ((gaps.min(1) + 1e-3)[:, None] * normals[face]).sum(0)
+    assert len(set(face.tolist())) >= 2                                                  # out through two faces
+    depth, way, margin = deepest(verts, fields)
+    push = clearing_push(verts, depth, way, margin, fields)
+    assert push @ mean / (np.linalg.norm(push) * np.linalg.norm(mean)) > np.cos(np.radians(3))
+    assert deepest(verts + push, fields)[0] == -1.0
 
 
 def test_smooth_pushes_fade_around_a_single_frame_and_keep_its_push():

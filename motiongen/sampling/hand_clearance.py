@@ -5,12 +5,13 @@ wider and longer than a wrist joint: posed on the body, its fingers or its side 
 the object. After the final solve, each run of a hand target is checked on the mesh: the hand's
 vertices against every placed object (its exact surface where its grid carries one, as `sample`
 and `evaluate` give it; else its voxels, whose surface is off by up to half a voxel: 1 cm at
-2 cm voxels, most of a hand's depth in a cup); where the deepest one is inside, the target
-moves by that depth plus a margin along that vertex's way out, and the sample is solved again
-(at most `ROUNDS` times). For a solve that puts a wrist on its target exactly, the pushes are
-spread over the neighbouring frames (`smooth_pushes`, `PUSH_SMOOTHING`): a hand inside on one
-frame and not on the next would otherwise get a target that jumps by centimetres from one
-frame to the next, which such a solve follows as a wrist shaking at 10-15 Hz.
+2 cm voxels, most of a hand's depth in a cup); where one is inside, the target moves along
+the inside vertices' mean way out until none is inside (`clearing_push`), and the sample is
+solved again (at most `ROUNDS` times). For a solve that puts a wrist on its target exactly,
+the pushes are spread over the neighbouring frames (`smooth_pushes`, `PUSH_SMOOTHING`): a hand
+inside on one frame and not on the next would otherwise get a target that jumps by
+centimetres from one frame to the next, which such a solve follows as a wrist shaking at
+10-15 Hz.
 """
 
 from __future__ import annotations
@@ -84,8 +85,8 @@ def object_fields(objects) -> list:
 
 def push_out(body, reach: tuple, fields, ids: dict, bm, sigma: float = 0.0) -> tuple | None:
     """The targets with every hand-action frame where a hand is inside an object moved: that
-    frame's target for that hand becomes the wrist where the solve put it, moved by the depth
-    plus a margin along the deepest vertex's way out (`clearing_step`), at full weight — a ramp
+    frame's target for that hand becomes the wrist where the solve put it, moved clear of the
+    object (`clearing_push`), at full weight — a ramp
     frame too (the network's hand may pass through the object on its way there), and the other
     hand too (it gets a target on those frames). sigma > 0 (frames): the pushes fade in and out
     over the neighbouring frames (`smooth_pushes`) instead of stopping at the frames that need
@@ -104,7 +105,7 @@ def push_out(body, reach: tuple, fields, ids: dict, bm, sigma: float = 0.0) -> t
             hand = np.asarray(verts[i], np.float64)                                        # (K, 3)
             depth, way_out, margin = deepest(hand, fields)
             if depth >= 0:
-                push[i], inside[i] = clearing_step(hand, way_out, depth, margin, fields) * way_out, True
+                push[i], inside[i] = clearing_push(hand, depth, way_out, margin, fields), True
         if not inside.any():
             continue
         changed = True
@@ -162,6 +163,24 @@ def _spread(g: np.ndarray, push: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 SMOOTH_ROUNDS = 8     # top-ups of `smooth_pushes`
 
 
+def clearing_push(hand: np.ndarray, depth: float, way_out: np.ndarray, margin: float, fields) -> np.ndarray:
+    """A move (3,) that takes a hand's vertices (K, 3) out of every object (`clearing_step`):
+    along the inside vertices' mean way out, each weighted by its depth (`mean_way_out`),
+    unless no move of up to MAX_PUSH that way does it (a plate through the hand: half its
+    vertices leave up, half down, and their mean points nowhere); then along the deepest
+    vertex's (depth m, way_out (3,), margin m, as `deepest` gives them). The deepest vertex
+    alone misleads where a hand holds an object's edge: it leaves through one face while the
+    vertices that went in through the other stay in, and the next round's deepest vertex
+    points elsewhere again, so the hand never gets out (docs/results.md, "Hands out of
+    objects along their mean way out")."""
+    mean = mean_way_out(hand, fields)
+    if mean is not None:
+        step = clearing_step(hand, mean, depth, margin, fields)
+        if deepest(hand + step * mean, fields)[0] < 0:
+            return step * mean
+    return clearing_step(hand, way_out, depth, margin, fields) * way_out
+
+
 def clearing_step(hand: np.ndarray, way_out: np.ndarray, depth: float, margin: float, fields) -> float:
     """How far (m) to move a hand's vertices (K, 3) along way_out (3,) for none to be inside
     an object: the deepest vertex's depth and margin where that does it, else that step grown
@@ -188,6 +207,27 @@ def deepest(points: np.ndarray, fields) -> tuple[float, np.ndarray, float]:
     exact surface, or its voxels; depth -1: none inside). A point in an occupied voxel less
     than half a voxel from a free one has depth 0 and still moves out by the margin."""
     best = (-1.0, np.zeros(3), 0.0)
+    for depth, way, margin in _inside(points, fields):
+        i = int(np.argmax(depth))
+        if depth[i] > best[0]:
+            best = (float(depth[i]), way[i], margin)
+    return best
+
+
+def mean_way_out(points: np.ndarray, fields) -> np.ndarray | None:
+    """Unit (3,) mean of the ways out of the points inside any object, each weighted by its
+    depth (and a millimetre, so that points on a surface count); None when none is inside."""
+    total = np.zeros(3)
+    for depth, way, _ in _inside(points, fields):
+        total += ((depth + 1e-3)[:, None] * way).sum(0)
+    norm = np.linalg.norm(total)
+    return total / norm if norm > 1e-9 else None
+
+
+def _inside(points: np.ndarray, fields):
+    """Per object with points (N, 3) inside it: (depths (n,) m ≥ 0, unit ways out (n, 3),
+    margin m). Inside: behind the exact surface, or in an occupied voxel (depth 0 within half
+    a voxel of a free one)."""
     for field, pose, margin, grid in fields:
         local = (points - pose[:3, 3]) @ pose[:3, :3]                                       # Rᵀ(p − t)
         exact = grid.exact_surface is field
@@ -199,8 +239,6 @@ def deepest(points: np.ndarray, fields) -> tuple[float, np.ndarray, float]:
         if not len(inside):
             continue
         q = field.query(points[inside], pose=pose)
-        i = int(np.argmin(q.distance))
-        if (not exact or q.distance[i] < 0) and -q.distance[i] > best[0]:
-            best = (max(float(-q.distance[i]), 0.0), q.direction[i], margin)
-    return best
-
+        keep = q.distance < 0 if exact else np.ones(len(inside), bool)
+        if keep.any():
+            yield np.maximum(-q.distance[keep], 0.0), q.direction[keep], margin
