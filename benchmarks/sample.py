@@ -2,7 +2,7 @@
 
     python benchmarks/sample.py [ckpt=PATH] [threads=2] [preset=paper] [episodes=6] [project=true]
                                 [stride=3] [length=16] [samplers=ddpm-100,ddim-50,ddim-25,ddim-10] [batches=1,8]
-                                [precisions=fp32,bf16] [solves=lbfgs] [memos=on]
+                                [precisions=fp32,bf16] [solves=refined] [memos=on]
 
 Speed: the `paper` preset with random-init weights (speed does not depend on training) on the
 CPU, one row per sampler x batch x precision x final-solve method (`loop.solve`), each run in a
@@ -18,7 +18,7 @@ distinct label window (`Denoiser.memoise_actions`).
 what `ddim-n` costs here (the same network, guidance folded in, n evaluations per window), so
 the issue-27 figure is
 
-    python benchmarks/sample.py samplers=ddim-25,ddim-2,ddim-1 batches=1,64 precisions=bf16 solves=lbfgs,joint-space
+    python benchmarks/sample.py samplers=ddim-25,ddim-2,ddim-1 batches=1,64 precisions=bf16 solves=refined,lbfgs,joint-space
 
 `stride=2 length=24` gives the model 15 fps windows of the same 1.6 s (the demo's and quality
 recipe's rate), which also sets the rate-dependent clean-up (seam blend, the solve's weights).
@@ -65,7 +65,7 @@ SETTINGS = [("ddpm", 100), ("ddim", 50), ("ddim", 25), ("ddim", 10)]
 def _args(argv):
     out = {"ckpt": None, "threads": "2", "preset": "paper", "episodes": "6", "project": "true",
            "stride": "3", "length": "16", "samplers": ",".join(f"{s}-{n}" for s, n in SETTINGS), "batches": "1,8",
-           "precisions": "fp32,bf16", "solves": "lbfgs", "memos": "on"}
+           "precisions": "fp32,bf16", "solves": "refined", "memos": "on"}
     for a in argv:
         k, _, v = a.partition("=")
         out[k] = v

@@ -42,7 +42,7 @@ class LoopOverrides:
     smooth: float | None = None     # Gaussian sigma (output frames) before the final solve; 0 = off
     seam_blend: float | None = None  # seconds; 0 = off
     solve_smoothness: float | None = None  # final solve's joint-acceleration weight; None = by the model's frame rate
-    solve: str | None = None        # final solve: lbfgs | joint-space (docs/sampling.md)
+    solve: str | None = None        # final solve: refined | lbfgs | joint-space (docs/sampling.md)
     swing_clearance: bool | None = None  # false: the final solve may pull a swinging foot below its predicted height
     seat_shift: bool | None = None  # false: seated bodies are not moved onto their seats
 

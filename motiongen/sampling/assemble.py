@@ -138,7 +138,7 @@ def planted_at_output(stance: np.ndarray, joints: np.ndarray, contact_joints, mo
 
 def solve_bodies(body, joints: np.ndarray, rot_model: torch.Tensor, planted: np.ndarray | None,
                  contact_joints, model_fps: float, out_fps: float, reach: list | None = None, cfg=None,
-                 samples=None, method: str = "lbfgs", planted_heights: np.ndarray | None = None) -> list:
+                 samples=None, method: str = "refined", planted_heights: np.ndarray | None = None) -> list:
     """The final solve, per sample: joints (S, T, J, 3) to follow at the output rate (resampled
     projected frames), rot_model (S, Tm, 22, 3, 3) the episodes' rotations (twist hints),
     planted (S, T, C) or None, reach: per sample a `reach_targets` tuple or None, cfg: the

@@ -95,13 +95,14 @@ class LoopConfig:
     # solve's swing clearance the 10 fps models gain from it as the 15 fps demo does (docs/quality.md).
     seam_blend: float | None = 0.6
     solve_smoothness: float | None = None  # final solve's joint-acceleration weight; None = by model rate (assemble.solve_smoothness_for_rate)
-    # How the final solve is solved: lbfgs (80 L-BFGS iterations over the rotations),
-    # joint-space (the objective's minimum in joint space in closed form, then put on the body
-    # analytically; body/joint_solve.py): ~20x faster, the feet planted better, but further
-    # from the data's motion spectrum (PSKL) in the dynamic setting, or refined (40 L-BFGS
-    # iterations from the joint-space result): a straighter, smoother walk, but more hands
-    # inside what they pick up on the quality checkpoints (docs/results.md).
-    solve: str = "lbfgs"
+    # How the final solve is solved: refined (the joint-space minimum, then 40 L-BFGS
+    # iterations over the rotations from it): on the validation scenes a walk as straight as the
+    # network's and a jerk near the data's, where lbfgs (80 iterations from the analytic start)
+    # stops short with the pelvis shaking at 4-8 Hz; lbfgs keeps a little lower PSKL and dynamic
+    # skating. joint-space (the minimum in joint space in closed form, put on the body
+    # analytically; body/joint_solve.py): ~20x faster, but further from the data's motion
+    # spectrum (PSKL) in the dynamic setting (docs/sampling.md, docs/results.md).
+    solve: str = "refined"
     # Actions done with a hand on the nearest placed object: the final solve puts the nearer
     # hand on it over the frames so labelled. () leaves hands where the network put them.
     hand_actions: tuple[str, ...] = ("pick up",)
