@@ -173,8 +173,7 @@ def test_a_hand_over_an_edge_moves_along_the_mean_way_out(bm):
     face = gaps.argmin(1)
     mean = ((gaps.min(1) + 1e-3)[:, None] * normals[face]).sum(0)
     assert len(set(face.tolist())) >= 2                                                  # out through two faces
-    depth, way, margin = deepest(verts, fields)
-    push = clearing_push(verts, depth, way, margin, fields)
+    push = clearing_push(verts, fields)
     assert push @ mean / (np.linalg.norm(push) * np.linalg.norm(mean)) > np.cos(np.radians(3))
     assert deepest(verts + push, fields)[0] == -1.0
 

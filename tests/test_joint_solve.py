@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from motiongen.body.joint_solve import solve_joints
-from motiongen.body.limbs import place_limbs, two_bone
+from motiongen.body.joint_solve import LIMB_JOINTS, TRUNK, follow_locks, held_limbs, into_reach, solve_joints
+from motiongen.body.limbs import LIMBS, limb_lengths, place_limbs, two_bone
 from motiongen.body.rotations import axis_angle_to_matrix
 from motiongen.body.solve import SOLVE_CONFIG
 from motiongen.errors import ConfigError
@@ -195,9 +195,6 @@ def test_into_reach_brings_the_hips_to_a_far_planted_foot(bm):
     for 10 frames (a step, the hardest case for a smoothed shift): the trunk moves towards it,
     smoothly and by about what it needs, the ankle is then within reach but for a centimetre at
     the step's edges (the legs' soft IK takes that), and the limbs' ends stay where they were."""
-    from motiongen.body.joint_solve import LIMB_JOINTS, TRUNK, held_limbs, into_reach
-    from motiongen.body.limbs import LIMBS, limb_lengths
-
     rest_t = bm.rest_joints(torch.zeros(bm.num_betas)).double()
     rest, lengths = rest_t.numpy(), limb_lengths(rest_t).numpy()                       # (22, 3), (4,)
     T = 40
@@ -225,9 +222,6 @@ def test_follow_locks_moves_the_trunk_by_the_held_feet_moves():
     """Known answer: where both feet of a standing body are held 10 cm from their targets the
     trunk moves by that mean across the floor; where only one foot joint pair is held, by
     half; where none is, not at all; limbs' middles and ends stay where the solve put them."""
-    from motiongen.body.joint_solve import TRUNK, follow_locks
-    from motiongen.skeleton import FOOT_JOINTS
-
     T = 9
     X = np.zeros((T, 22, 3))
     Y = X.copy()

@@ -102,10 +102,9 @@ def push_out(body, reach: tuple, fields, ids: dict, bm, sigma: float = 0.0) -> t
         verts = bm.motion_vertices(body, acting, vids)                                      # (F, K, 3)
         push, inside = np.zeros((len(acting), 3)), np.zeros(len(acting), bool)
         for i in range(len(acting)):
-            hand = np.asarray(verts[i], np.float64)                                        # (K, 3)
-            depth, way_out, margin = deepest(hand, fields)
-            if depth >= 0:
-                push[i], inside[i] = clearing_push(hand, depth, way_out, margin, fields), True
+            p = clearing_push(np.asarray(verts[i], np.float64), fields)                    # (3,) or None
+            if p is not None:
+                push[i], inside[i] = p, True
         if not inside.any():
             continue
         changed = True
@@ -163,20 +162,24 @@ def _spread(g: np.ndarray, push: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 SMOOTH_ROUNDS = 8     # top-ups of `smooth_pushes`
 
 
-def clearing_push(hand: np.ndarray, depth: float, way_out: np.ndarray, margin: float, fields) -> np.ndarray:
-    """A move (3,) that takes a hand's vertices (K, 3) out of every object (`clearing_step`):
-    along the inside vertices' mean way out, each weighted by its depth (`mean_way_out`),
-    unless no move of up to MAX_PUSH that way does it (a plate through the hand: half its
-    vertices leave up, half down, and their mean points nowhere); then along the deepest
-    vertex's (depth m, way_out (3,), margin m, as `deepest` gives them). The deepest vertex
-    alone misleads where a hand holds an object's edge: it leaves through one face while the
-    vertices that went in through the other stay in, and the next round's deepest vertex
-    points elsewhere again, so the hand never gets out (docs/results.md, "Hands out of
-    objects along their mean way out")."""
-    mean = mean_way_out(hand, fields)
+def clearing_push(hand: np.ndarray, fields) -> np.ndarray | None:
+    """A move (3,) that takes a hand's vertices (K, 3) out of every object (`clearing_step`),
+    None when none is inside: along the inside vertices' mean way out, each weighted by its
+    depth, unless no move of up to MAX_PUSH that way does it (a plate through the hand: half
+    its vertices leave up, half down, and their mean points nowhere); then along the deepest
+    vertex's way out. The deepest vertex alone misleads where a hand holds an object's edge:
+    it leaves through one face while the vertices that went in through the other stay in, and
+    the next round's deepest vertex points elsewhere again, so the hand never gets out
+    (docs/results.md, "Hands out of objects along their mean way out")."""
+    inside = list(_inside(hand, fields))                  # one query of the objects for both ways
+    if not inside:
+        return None
+    depth, way_out, margin = _deepest(inside)
+    mean = _mean_way_out(inside)
     if mean is not None:
         step = clearing_step(hand, mean, depth, margin, fields)
-        if deepest(hand + step * mean, fields)[0] < 0:
+        # clearing_step stops short of MAX_PUSH only once the hand is out
+        if step < MAX_PUSH or deepest(hand + step * mean, fields)[0] < 0:
             return step * mean
     return clearing_step(hand, way_out, depth, margin, fields) * way_out
 
@@ -206,19 +209,24 @@ def deepest(points: np.ndarray, fields) -> tuple[float, np.ndarray, float]:
     """(depth m, unit direction out (3,), margin m) of the point deepest inside any object (its
     exact surface, or its voxels; depth -1: none inside). A point in an occupied voxel less
     than half a voxel from a free one has depth 0 and still moves out by the margin."""
+    return _deepest(_inside(points, fields))
+
+
+def _deepest(inside) -> tuple[float, np.ndarray, float]:
+    """`deepest` of `_inside`'s per-object (depths, ways out, margin)."""
     best = (-1.0, np.zeros(3), 0.0)
-    for depth, way, margin in _inside(points, fields):
+    for depth, way, margin in inside:
         i = int(np.argmax(depth))
         if depth[i] > best[0]:
             best = (float(depth[i]), way[i], margin)
     return best
 
 
-def mean_way_out(points: np.ndarray, fields) -> np.ndarray | None:
-    """Unit (3,) mean of the ways out of the points inside any object, each weighted by its
-    depth (and a millimetre, so that points on a surface count); None when none is inside."""
+def _mean_way_out(inside) -> np.ndarray | None:
+    """Unit (3,) mean of the ways out of `_inside`'s points, each weighted by its depth (and a
+    millimetre, so that points on a surface count); None where they cancel exactly."""
     total = np.zeros(3)
-    for depth, way, _ in _inside(points, fields):
+    for depth, way, _ in inside:
         total += ((depth + 1e-3)[:, None] * way).sum(0)
     norm = np.linalg.norm(total)
     return total / norm if norm > 1e-9 else None
