@@ -44,6 +44,7 @@ class LoopOverrides:
     solve_smoothness: float | None = None  # final solve's joint-acceleration weight; None = by the model's frame rate
     solve: str | None = None        # final solve: refined | lbfgs | joint-space (docs/sampling.md)
     swing_clearance: bool | None = None  # false: the final solve may pull a swinging foot below its predicted height
+    swing_lift: bool | None = None  # false: a swing stays as low as the network drew it (no data-height arc)
     seat_shift: bool | None = None  # false: seated bodies are not moved onto their seats
 
 

@@ -20,6 +20,7 @@ from motiongen.sampling.hand_clearance import PUSH_SMOOTHING, settle_hands
 from motiongen.sampling.interactions import hand_targets, merge_targets, seat_shift
 from motiongen.sampling.progress import GoalPlan
 from motiongen.sampling.settings import LoopConfig
+from motiongen.sampling.swing import lift_swings
 
 
 @dataclass
@@ -52,6 +53,8 @@ def clean_up(state: EpisodeState, layout, model_fps: float, plan: GoalPlan, loop
         out, seats = seat_bodies(out, labels, plan)
     bodies = None
     if state.body is not None:
+        if planted is not None and loop.swing_lift:
+            out = lift_swings(out, planted, layout.contact_joints)
         hands = hand_targets(out, labels, plan.names, loop.hand_actions, objects, scene) or [None] * out.shape[0]
         weights = solve_weights(loop.solve, model_fps, loop.solve_smoothness)
         clearance = SOLVE_CONFIG.w_clearance if loop.swing_clearance else 0.0

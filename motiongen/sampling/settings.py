@@ -119,6 +119,10 @@ class LoopConfig:
     seat_offset: float = 0.10
     seat_shift: bool = True        # the clean-up moves a seated body onto its seat and holds the pelvis there
     swing_clearance: bool = True   # the final solve keeps an unplanted foot from being pulled below its predicted height
+    # A foot's swing between two plants rises at least as high as the training data's swings of
+    # that length (sampling/swing.py): the lock turns the network's shuffle into steps, and this
+    # keeps those steps from gliding over the floor. Needs a body (the final solve).
+    swing_lift: bool = True
 
     def __post_init__(self):
         require_choice("loop.foot_height", self.foot_height, FOOT_HEIGHTS)
@@ -136,6 +140,7 @@ CLEANUP_STAGES: dict[str, dict] = {
     "foot_lock": {"foot_lock": False},
     "foot_height": {"foot_height": "free"},
     "clearance": {"swing_clearance": False},
+    "swing_lift": {"swing_lift": False},
     "smoothing": {"smooth": 0.0},
     "hand_goal": {"hand_goal": ()},
     "hand_reach": {"hand_actions": ()},
@@ -143,7 +148,7 @@ CLEANUP_STAGES: dict[str, dict] = {
 }
 IN_LOOP_STAGES = ("projection", "seam_blend", "hand_goal")
 # The LoopConfig fields only the clean-up after the last episode reads.
-POST_LOOP_FIELDS = frozenset({"foot_lock", "foot_height", "swing_clearance", "smooth", "hand_actions", "seat_shift",
+POST_LOOP_FIELDS = frozenset({"foot_lock", "foot_height", "swing_clearance", "swing_lift", "smooth", "hand_actions", "seat_shift",
                               "solve_smoothness", "solve"})
 
 
