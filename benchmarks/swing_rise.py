@@ -1,12 +1,13 @@
-"""How high does a foot rise on a swing of a given length? (not a timed test) The table behind
-`motiongen.sampling.swing.SWING_RISE`: on the split's sequences, the feet's plants are found
-by the sampler's own rules (the stance labels the network is trained on, then
-`assemble.planted_at_output` at the data's rate), and every swing between two plants is
+"""How high does a foot rise on a swing of a given length? (not a timed test) What
+`motiongen.data.swing_rise` measures for a checkpoint's swing table, in detail: on the split's
+sequences, the feet's plants are found by the sampler's own rules (the stance labels the
+network is trained on, then `spans.clean_plants`), and every swing between two plants is
 measured: its horizontal length, and its largest rise above the line between the heights of
 the plants' last and first frames. Prints the median and the 10th / 90th percentiles per
-length bin, for ankles and toes, beside the table the sampler uses. With `bvh=DIR` the same
-for real mocap clips, whose plants are found from the feet alone (slower than 0.2 m/s and
-within 5 cm of the clip's lowest heights).
+length bin, for ankles and toes, beside the embedded table (`swing_rise.EMBEDDED`, what a
+checkpoint without its own takes). With `bvh=DIR` the same for real mocap clips, whose plants
+are found from the feet alone (slower than 0.2 m/s and within 5 cm of the clip's lowest
+heights).
 
     python benchmarks/swing_rise.py [split=train] [bvh=/usr/share/assimp/models/BVH]
 """
@@ -19,36 +20,19 @@ import numpy as np
 
 from motiongen.bvh.retarget import import_bvh
 from motiongen.cli import parse_key_values, tool_main
-from motiongen.data.representation import stance_labels
+from motiongen.data.swing_rise import EDGES, EMBEDDED, KINDS, sequence_rows, swing_rows
 from motiongen.importers.sources import DataConfig, open_dataset
-from motiongen.sampling.assemble import planted_at_output
-from motiongen.sampling.swing import SWING_LENGTH, SWING_RISE, swings
 from motiongen.skeleton import FOOT_JOINTS
+from motiongen.spans import clean_plants
 
 SPEC = {"split": (str, "train"), "bvh": (str, None)}
-EDGES = np.array([0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.7, 1.0, 3.0])   # bins whose middles are SWING_LENGTH
-KINDS = {"ankle": (FOOT_JOINTS[0], FOOT_JOINTS[2]), "toe": (FOOT_JOINTS[1], FOOT_JOINTS[3])}
-
-
-def swing_rows(joints: np.ndarray, planted: np.ndarray) -> list[tuple[int, float, float]]:
-    """[(joint, length m, rise m)] of every swing of the foot joints: joints (T, J, 3), planted
-    (T, 4) flags of FOOT_JOINTS."""
-    rows = []
-    for c, j in enumerate(FOOT_JOINTS):
-        for a, b in swings(planted[:, c]):
-            y = joints[a:b + 1, j, 1]
-            rise = (y - np.linspace(y[0], y[-1], len(y))).max()
-            rows.append((j, float(np.linalg.norm(joints[b, j, [0, 2]] - joints[a, j, [0, 2]])), float(rise)))
-    return rows
 
 
 def dataset_rows(split: str) -> tuple[list, float]:
     ds = open_dataset(DataConfig(), verbose=False)
     rows = []
     for seq in ds.split_sequences(split):
-        j = np.asarray(ds.joints[seq.start:seq.end], np.float64)                        # (T, J, 3)
-        stance = stance_labels(j, np.asarray(ds.contact[seq.start:seq.end]), FOOT_JOINTS, ds.fps)
-        rows += swing_rows(j, planted_at_output(stance[None], j[None], FOOT_JOINTS, ds.fps, ds.fps)[0])
+        rows += sequence_rows(np.asarray(ds.joints[seq.start:seq.end]), np.asarray(ds.contact[seq.start:seq.end]), ds.fps)
     return rows, ds.fps
 
 
@@ -59,7 +43,7 @@ def bvh_rows(folder: str, fps: float) -> list:
         feet = j[:, list(FOOT_JOINTS)]                                                    # (T, 4, 3)
         speed = np.linalg.norm(np.gradient(feet, axis=0), axis=-1) * fps
         low = feet[..., 1] < np.percentile(feet[..., 1], 5, axis=0) + 0.05
-        rows += swing_rows(j, planted_at_output((low & (speed < 0.2))[None], j[None], FOOT_JOINTS, fps, fps)[0])
+        rows += swing_rows(j, clean_plants(low & (speed < 0.2), feet))
     return rows
 
 
@@ -68,12 +52,12 @@ def print_table(what: str, rows: list) -> None:
     print(f"{what}: {len(r)} swings")
     for kind, joints in KINDS.items():
         m0 = np.isin(r[:, 0], joints)
-        for i, (lo, hi) in enumerate(zip(EDGES[:-1], EDGES[1:])):
+        for lo, hi in zip(EDGES[:-1], EDGES[1:]):
             m = m0 & (r[:, 1] >= lo) & (r[:, 1] < hi)
             got = ("rise median %.3f m (p10 %.3f, p90 %.3f)" % (np.median(r[m, 2]), *np.percentile(r[m, 2], [10, 90]))
                    if m.any() else "no swings")
             print(f"  {kind:5s} {lo:.2f}-{hi:.2f} m: {int(m.sum()):5d} swings, {got}; "
-                  f"table at {SWING_LENGTH[i]:.3f} m: {SWING_RISE[kind][i]:.3f}")
+                  f"embedded table there: {EMBEDDED.at(kind, np.median(r[m, 1])) if m.any() else float('nan'):.3f}")
 
 
 def run(argv: list[str]) -> None:

@@ -1,5 +1,8 @@
 """Swing lift: a foot between two plants rises at least as high as the data's swings of that
-length, in the targets (closed form) and in the body the final solve puts on them."""
+length, in the targets (closed form) and in the body the final solve puts on them; the data's
+swing table measured, saved with a checkpoint and read back."""
+
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -7,9 +10,12 @@ import torch
 
 from motiongen.body.random_motion import sample_motion
 from motiongen.body.solve import MotionBody
+from motiongen.data.swing_rise import EMBEDDED, SwingRise, sequence_rows, table
 from motiongen.sampling.assemble import solve_bodies
-from motiongen.sampling.swing import SWING_LENGTH, SWING_RISE, lift_swings, swing_rise, swings
+from motiongen.sampling.swing import lift_swings
 from motiongen.skeleton import BODY, FOOT_JOINTS, PELVIS
+from motiongen.spans import swings
+from motiongen.training.setup import swing_meta
 
 L_TOE = FOOT_JOINTS[1]
 
@@ -22,10 +28,13 @@ def test_swings_are_the_unplanted_runs_between_two_plants():
 
 
 def test_the_rise_is_the_table_between_its_lengths_and_its_ends_beyond():
-    assert swing_rise("toe", SWING_LENGTH[2]) == SWING_RISE["toe"][2]
-    mid = (SWING_LENGTH[2] + SWING_LENGTH[3]) / 2
-    assert swing_rise("ankle", mid) == pytest.approx((SWING_RISE["ankle"][2] + SWING_RISE["ankle"][3]) / 2)
-    assert swing_rise("toe", 0.0) == SWING_RISE["toe"][0] and swing_rise("toe", 5.0) == SWING_RISE["toe"][-1]
+    L, R = EMBEDDED.length["ankle"], EMBEDDED.rise["ankle"]
+    assert EMBEDDED.at("ankle", L[2]) == R[2]
+    assert EMBEDDED.at("ankle", (L[2] + L[3]) / 2) == pytest.approx((R[2] + R[3]) / 2)
+    assert EMBEDDED.at("toe", 0.0) == EMBEDDED.rise["toe"][0] and EMBEDDED.at("toe", 5.0) == EMBEDDED.rise["toe"][-1]
+    again = SwingRise.from_state_dict(EMBEDDED.state_dict())
+    assert all(np.array_equal(again.rise[k], EMBEDDED.rise[k]) and np.array_equal(again.length[k], EMBEDDED.length[k])
+               for k in EMBEDDED.rise) and again.swings == EMBEDDED.swings
 
 
 def _shuffle(T=30):
@@ -45,9 +54,14 @@ def test_a_shuffling_toe_rises_on_the_datas_arc_and_nothing_else_moves():
     j, planted = _shuffle()
     out = lift_swings(j, planted, FOOT_JOINTS)
     frac = np.arange(1, 11) / 11                                            # frames 10..19 between plants at 9 and 20
-    arc = 0.02 + swing_rise("toe", 0.25) * np.sin(np.pi * frac)
+    arc = 0.02 + EMBEDDED.at("toe", 0.25) * np.sin(np.pi * frac)
     np.testing.assert_allclose(out[0, 10:20, L_TOE, 1], np.maximum(0.025, arc))
-    assert out[0, 14:16, L_TOE, 1].min() > 0.02 + 0.95 * swing_rise("toe", 0.25)   # 5 cm up mid-swing
+    assert out[0, 14:16, L_TOE, 1].min() > 0.02 + 0.95 * EMBEDDED.at("toe", 0.25)    # 5 cm up mid-swing
+    # A checkpoint's own table: its rise, whatever the embedded one says.
+    own = SwingRise({"ankle": np.array([0.0, 1.0]), "toe": np.array([0.0, 1.0])},
+                    {"ankle": np.array([0.1, 0.1]), "toe": np.array([0.1, 0.1])})
+    np.testing.assert_allclose(lift_swings(j, planted, FOOT_JOINTS, own)[0, 10:20, L_TOE, 1],
+                               np.maximum(0.025, 0.02 + 0.1 * np.sin(np.pi * frac)))
     changed = out != j
     changed[0, 10:20, L_TOE, 1] = False
     assert not changed.any()                                                # x, z, plants and other joints as they were
@@ -96,8 +110,67 @@ def test_the_final_solve_puts_the_bodys_toe_on_the_raised_swing(bm):
 
     low = solved(X)
     high = solved(lift_swings(X[None], planted[None], FOOT_JOINTS)[0])
-    base, rise = X[0, L_TOE, 1], swing_rise("toe", 0.24)
+    base, rise = X[0, L_TOE, 1], EMBEDDED.at("toe", 0.24)
     assert low[20:25, L_TOE, 1].max() < base + 0.02
     assert high[22, L_TOE, 1] > base + rise - 0.01
     held = planted[:, 1]
     assert np.abs(high[held, L_TOE] - low[held, L_TOE]).max() < 0.01        # the plants stay
+
+
+def _steps(n_steps=6, rise=0.06, length=0.25):
+    """One walk (T, 22, 3) and contact labels (T, 22): the feet take turns, each step a swing of
+    11 frames between plants of 13, `length` m forward on an arc `rise` m high (sin, its top on
+    the middle frame); toes 2 cm up, ankles 8 cm. Every other joint still, out of contact."""
+    plant, swing = 13, 11
+    T = n_steps * (plant + swing) + plant
+    j = np.zeros((T, 22, 3))
+    j[:, :, 1] = 1.0
+    contact = np.zeros((T, 22), bool)
+    for side, (ankle, toe) in enumerate([FOOT_JOINTS[:2], FOOT_JOINTS[2:]]):
+        x = np.zeros(T)
+        y = np.zeros(T)
+        on = np.ones(T, bool)
+        for k in range(side, n_steps, 2):                        # this foot's steps
+            a = k * (plant + swing) + plant - 1                  # the plant's last frame
+            frac = np.arange(1, swing + 1) / (swing + 1)
+            x[a + 1:a + swing + 1] = x[a] + length * frac
+            x[a + swing + 1:] = x[a] + length
+            y[a + 1:a + swing + 1] = rise * np.sin(np.pi * frac)
+            on[a + 1:a + swing + 1] = False
+        for jj, h in ((ankle, 0.08), (toe, 0.02)):
+            j[:, jj] = np.stack([x + 0.1 * side, y + h, 0.05 * np.ones(T)], -1)
+            contact[:, jj] = on
+    return j, contact
+
+
+def test_the_table_of_a_walk_is_its_swings_rise_at_its_step_length():
+    j, contact = _steps()
+    got = table(sequence_rows(j, contact, 30.0))
+    assert got.swings == 12                                                          # 6 steps x ankle and toe
+    for kind in ("ankle", "toe"):
+        np.testing.assert_allclose(got.length[kind], [0.25])
+        np.testing.assert_allclose(got.rise[kind], [0.06])
+    assert table(sequence_rows(*_steps(n_steps=2), 30.0)) is None                     # 2 swings a kind: too few
+
+
+class _Walks:
+    """The parts of a MotionDataset `swing_rise.measure` reads: two walks in the train split."""
+    fps = 30.0
+
+    def __init__(self):
+        a, b = _steps(rise=0.05), _steps(rise=0.07)
+        self.joints, self.contact = np.concatenate([a[0], b[0]]), np.concatenate([a[1], b[1]])
+        self.seqs = [SimpleNamespace(start=0, end=len(a[0])), SimpleNamespace(start=len(a[0]), end=len(self.joints))]
+
+    def split_sequences(self, split):
+        assert split == "train"
+        return self.seqs
+
+
+def test_training_saves_the_data_table_and_a_resumed_run_keeps_its_own():
+    meta = swing_meta(_Walks(), None)
+    got = SwingRise.from_state_dict(meta["swing_rise"])
+    np.testing.assert_allclose(got.rise["toe"], [0.06])                               # median of 0.05 and 0.07
+    assert got.swings == 24
+    assert swing_meta(_Walks(), {"swing_rise": EMBEDDED.state_dict()}) == {"swing_rise": EMBEDDED.state_dict()}
+    assert swing_meta(_Walks(), {}) == {}                                             # a checkpoint from before

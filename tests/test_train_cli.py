@@ -11,6 +11,8 @@ from pathlib import Path
 import pytest
 import torch
 
+from motiongen.data.swing_rise import EMBEDDED
+from motiongen.loading.build import load_model
 from tests.helpers import make_dataset
 from tests.run_inprocess import run_command
 
@@ -61,6 +63,19 @@ def test_smoke_run_writes_events_and_checkpoint(dataset, tmp_path):
     for t in ("train/loss", "train/lr", "train/grad_norm", "train/samples_per_s", "val/loss"):
         assert t in tags["scalars"], (t, tags["scalars"])
     assert "samples/windows" in tags["images"]
+
+
+def test_the_checkpoint_carries_the_datas_swing_table(dataset, tmp_path):
+    """The tiny dataset's walks have no swing between two plants to measure: no table, and the
+    sampler takes the embedded one. A checkpoint with a table gives it to the sampler as saved."""
+    r = _run(_args(dataset, tmp_path, 1))
+    assert r.returncode == 0, r.stderr[-2000:]
+    ck = _weights(tmp_path / "checkpoints" / "last.pt")
+    assert "swing_rise" not in ck and load_model(tmp_path / "checkpoints" / "last.pt").swing_rise is None
+    ck["swing_rise"] = EMBEDDED.state_dict()
+    torch.save(ck, tmp_path / "with_table.pt")
+    got = load_model(tmp_path / "with_table.pt").swing_rise
+    assert got.state_dict() == EMBEDDED.state_dict()
 
 
 def test_sigkill_then_resume_is_bitwise_identical(dataset, tmp_path):

@@ -8,6 +8,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from motiongen.data.representation import Layout
+from motiongen.data.swing_rise import SwingRise
 from motiongen.data.windows import NormStats, WindowConfig
 from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, sample
 from motiongen.diffusion.masks import MaskConfig, predicts_goal, replace_mask, sample_known_mask
@@ -157,6 +158,9 @@ class LoadedModel:
         # A distilled student's `distill` entry (method, steps, teacher...; motiongen.training.distill),
         # None for a model trained by `motiongen train`: samplers take their defaults from it.
         self.distill = state.get("distill")
+        # The training data's swing heights for the sampler's swing lift; None (a checkpoint from
+        # before 2026-11-27): the embedded dataset's (`data/swing_rise.py`).
+        self.swing_rise = SwingRise.from_state_dict(state["swing_rise"]) if state.get("swing_rise") else None
         model, self.diffusion, _ = build_from_config(cfg, self.joint_set, self.action_names)
         part = "ema" if use_ema else "model"
         load_weights(model, state[part], path or "checkpoint", part, "its own config")

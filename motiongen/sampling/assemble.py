@@ -15,7 +15,7 @@ from motiongen.body.rotations import matrix_to_quaternion, quaternion_to_matrix
 from motiongen.body.solve import SOLVE_CONFIG
 from motiongen.checks import require_choice
 from motiongen.skeleton import NUM_BODY_JOINTS
-from motiongen.spans import true_runs
+from motiongen.spans import clean_plants
 
 
 def blend_seam(window: np.ndarray, k: int, frames: int) -> np.ndarray:
@@ -104,36 +104,12 @@ def resample(x: np.ndarray, model_fps: float, out_fps: float) -> np.ndarray:
 def planted_at_output(stance: np.ndarray, joints: np.ndarray, contact_joints, model_fps: float, out_fps: float,
                       min_frames: int = 5, min_swing: int = 8, same_spot: float = 0.05) -> np.ndarray:
     """Feet to lock, (S, T, C) bool at the output rate, from the predicted stance channels
-    (S, Tm, C) at the model rate (nearest model frame) and the motion's own joints (S, T, J, 3):
-
-    * spans shorter than `min_frames` go (flickers of the prediction, not steps);
-    * two spans of one joint that hold it within `same_spot` m of each other, split by a short
-      gap, are one plant (the prediction blinked);
-    * a swing between two plants shorter than `min_swing` frames (0.27 s at 30 fps; real steps
-      take twice that) is widened into the plants around it, so the foot has time to travel
-      instead of popping from one spot to the next."""
+    (S, Tm, C) at the model rate (nearest model frame) and the motion's own joints (S, T, J, 3),
+    by `spans.clean_plants`' rules (flickers dropped, blinks merged, short swings widened)."""
     _, near = output_times(stance.shape[1], model_fps, out_fps)
-    out = np.asarray(stance, bool)[:, near].copy()                                      # (S, T, C)
+    flags = np.asarray(stance, bool)[:, near]                                           # (S, T, C)
     feet = np.asarray(joints)[:, :, list(contact_joints)]                               # (S, T, C, 3)
-    for s in range(out.shape[0]):
-        for c in range(out.shape[2]):
-            col = out[s, :, c]
-            for a, b in true_runs(col):
-                if b - a < min_frames:
-                    col[a:b] = False
-            spans = true_runs(col)
-            for (a0, b0), (a1, b1) in zip(spans[:-1], spans[1:]):
-                gap = a1 - b0
-                if gap >= min_swing:
-                    continue
-                spot0, spot1 = feet[s, a0:b0, c].mean(0), feet[s, a1:b1, c].mean(0)
-                if np.linalg.norm(spot1 - spot0) < same_spot:
-                    col[b0:a1] = True                                                 # one plant
-                else:
-                    grow = min_swing - gap
-                    col[max(a0, b0 - (grow + 1) // 2):b0] = False                      # lift off earlier,
-                    col[a1:min(b1, a1 + grow // 2 + 1)] = False                       # land later
-    return out
+    return np.stack([clean_plants(flags[s], feet[s], min_frames, min_swing, same_spot) for s in range(len(flags))])
 
 
 def solve_bodies(body, joints: np.ndarray, rot_model: torch.Tensor, planted: np.ndarray | None,

@@ -36,8 +36,10 @@ class CleanMotion:
 
 
 def clean_up(state: EpisodeState, layout, model_fps: float, plan: GoalPlan, loop: LoopConfig,
-             objects, scene) -> CleanMotion:
-    """The output motion from the episodes' kept frames (see the module's docstring)."""
+             objects, scene, swing_rise=None) -> CleanMotion:
+    """The output motion from the episodes' kept frames (see the module's docstring);
+    swing_rise: the training data's swing table (`LoadedModel.swing_rise`, None: the embedded
+    dataset's) for the swing lift."""
     model_joints = np.concatenate(state.frames, 1)                                          # (S, Tm, J, 3)
     model_labels = np.concatenate(state.labels, 1)                                          # (S, Tm)
     _, near = output_times(model_joints.shape[1], model_fps, loop.out_fps)                 # (T,) nearest model frame
@@ -54,7 +56,7 @@ def clean_up(state: EpisodeState, layout, model_fps: float, plan: GoalPlan, loop
     bodies = None
     if state.body is not None:
         if planted is not None and loop.swing_lift:
-            out = lift_swings(out, planted, layout.contact_joints)
+            out = lift_swings(out, planted, layout.contact_joints, swing_rise)
         hands = hand_targets(out, labels, plan.names, loop.hand_actions, objects, scene) or [None] * out.shape[0]
         weights = solve_weights(loop.solve, model_fps, loop.solve_smoothness)
         clearance = SOLVE_CONFIG.w_clearance if loop.swing_clearance else 0.0

@@ -54,9 +54,10 @@ from motiongen.training.ema import EMA
 from motiongen.training.setup import lr_lambda, resolve_device, rng_state, set_rng_state
 from motiongen.training.trainer import TrainingDiverged
 
-# What a student checkpoint copies from its teacher's: everything that rebuilds the model.
+# What a student checkpoint copies from its teacher's: everything that rebuilds the model, and
+# the data's swing table its samples are cleaned up with.
 TEACHER_KEYS = ("format", "version", "config", "stats", "fps", "joint_names", "action_names", "model_config",
-                "diffusion_config")
+                "diffusion_config", "swing_rise")
 LINE_EVERY_S = 10.0
 
 

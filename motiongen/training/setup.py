@@ -22,6 +22,7 @@ from omegaconf import DictConfig, OmegaConf
 from torch.nn.parallel import DistributedDataParallel as DDP
 from torch.utils.data import DataLoader
 
+from motiongen.data import swing_rise
 from motiongen.data.format import MotionDataset
 from motiongen.data.windows import NormStats, WindowDataset
 from motiongen.diffusion.gaussian import GaussianDiffusion
@@ -123,6 +124,7 @@ def set_up(cfg: DictConfig, run_dir: Path) -> Run:
     ckpt_path, state = _resume_checkpoint(tc, run_dir, info)
     ds, train_set, val_set = _data(cfg, tc, info, state)
     model, diffusion, meta = build_from_config(cfg, ds.joint_set, ds.action_names)
+    meta.update(swing_meta(ds, state))
     model.to(device)
     ema = EMA(model, tc.ema_decay)
     opt = torch.optim.Adam(model.parameters(), lr=tc.lr, weight_decay=tc.weight_decay, fused=True)
@@ -201,6 +203,16 @@ def _data(cfg: DictConfig, tc: TrainConfig, info: dd.DistInfo, state: dict | Non
     if val_set is not None and len(val_set) == 0:
         val_set = None
     return ds, train_set, val_set
+
+
+def swing_meta(ds: MotionDataset, state: dict | None) -> dict:
+    """{"swing_rise": the training split's swing table} for the checkpoint (the sampler's swing
+    lift, `data/swing_rise.py`); a resumed run keeps its checkpoint's; {} when the data has no
+    swing to measure (the sampler then takes the embedded dataset's)."""
+    if state is not None:
+        return {"swing_rise": state["swing_rise"]} if "swing_rise" in state else {}
+    table = swing_rise.measure(ds, "train")
+    return {} if table is None else {"swing_rise": table.state_dict()}
 
 
 def _restore(run: Run, state: dict, ckpt_path: Path) -> None:
