@@ -59,4 +59,4 @@ def oracle_loaded(model_cls=None, predict_goal=False):
                                  stats=stats, joint_set=BODY, action_names=["walk", "sit"], window=window,
                                  layout=Layout.for_window(window, BODY), predict_goal=predict_goal, fps=30.0,
                                  model_fps=30.0 / window.stride,
-                                 mask=MaskConfig(max_transition=2), device=torch.device("cpu"))
+                                 mask=MaskConfig(max_transition=2), device=torch.device("cpu"), swing_rise=None)

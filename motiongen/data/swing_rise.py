@@ -29,7 +29,7 @@ MIN_SWINGS = 5          # a bin with fewer swings of a kind is left out of that 
 
 @dataclass
 class SwingRise:
-    """Median rise (m) of the ankle and toe swings by swing length (m): rise(kind, d) reads it
+    """Median rise (m) of the ankle and toe swings by swing length (m): at(kind, d) reads it
     linearly between the lengths, and takes its end values beyond them."""
 
     length: dict            # kind -> (B,) swing lengths, ascending

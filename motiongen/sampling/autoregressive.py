@@ -135,7 +135,7 @@ def generate(loaded, scene=None, *, route: Route, walkable: WalkableMap | None =
                       + shortfall(progress, plan, state.pelvis_now(), progress.stalled), stacklevel=2)
 
     def finish(lc: LoopConfig) -> Motion:
-        out = clean_up(state, loaded.layout, spec.model_fps, plan, lc, objects, scene, getattr(loaded, "swing_rise", None))
+        out = clean_up(state, loaded.layout, spec.model_fps, plan, lc, objects, scene, loaded.swing_rise)
         return as_motion(loaded, route, lc.out_fps, spec.model_fps, state.episodes[first_kept:], state, progress,
                          out, time.perf_counter() - t_start)
 
