@@ -20,20 +20,12 @@ import numpy as np
 
 from motiongen.bvh.retarget import import_bvh
 from motiongen.cli import parse_key_values, tool_main
-from motiongen.data.swing_rise import EDGES, EMBEDDED, KINDS, sequence_rows, swing_rows
+from motiongen.data.swing_rise import EDGES, EMBEDDED, KINDS, dataset_rows, swing_rows
 from motiongen.importers.sources import DataConfig, open_dataset
 from motiongen.skeleton import FOOT_JOINTS
 from motiongen.spans import clean_plants
 
 SPEC = {"split": (str, "train"), "bvh": (str, None)}
-
-
-def dataset_rows(split: str) -> tuple[list, float]:
-    ds = open_dataset(DataConfig(), verbose=False)
-    rows = []
-    for seq in ds.split_sequences(split):
-        rows += sequence_rows(np.asarray(ds.joints[seq.start:seq.end]), np.asarray(ds.contact[seq.start:seq.end]), ds.fps)
-    return rows, ds.fps
 
 
 def bvh_rows(folder: str, fps: float) -> list:
@@ -62,10 +54,10 @@ def print_table(what: str, rows: list) -> None:
 
 def run(argv: list[str]) -> None:
     opts = parse_key_values(argv, SPEC, usage=__doc__.splitlines()[-2].strip())
-    rows, fps = dataset_rows(opts["split"])
-    print_table(f"data, split {opts['split']}", rows)
+    ds = open_dataset(DataConfig(), verbose=False)
+    print_table(f"data, split {opts['split']}", dataset_rows(ds, opts["split"]))
     if opts["bvh"]:
-        print_table(f"real mocap, {opts['bvh']}", bvh_rows(opts["bvh"], fps))
+        print_table(f"real mocap, {opts['bvh']}", bvh_rows(opts["bvh"], ds.fps))
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ from typing import Iterable
 
 import numpy as np
 
+from motiongen.data.format import release
 from motiongen.data.representation import stance_labels
 from motiongen.skeleton import FOOT_JOINTS, LEFT_FOOT_JOINTS, RIGHT_FOOT_JOINTS
 from motiongen.spans import clean_plants, swings
@@ -69,11 +70,23 @@ def swing_rows(joints: np.ndarray, planted: np.ndarray) -> list[tuple[int, float
     return rows
 
 
-def sequence_rows(joints: np.ndarray, contact: np.ndarray, fps: float) -> list:
-    """swing_rows of one sequence, joints (T, J, 3), contact (T, J) labels, at fps."""
+def sequence_rows(joints: np.ndarray, contact: np.ndarray, fps: float, stance_speed: float = 0.2) -> list:
+    """swing_rows of one sequence, joints (T, J, 3), contact (T, J) labels, at fps; plants from
+    the stance labels at `stance_speed` (the window config's, as the network learns them)."""
     j = np.asarray(joints, np.float64)
-    planted = clean_plants(stance_labels(j, contact, FOOT_JOINTS, fps), j[:, list(FOOT_JOINTS)])
+    planted = clean_plants(stance_labels(j, contact, FOOT_JOINTS, fps, stance_speed), j[:, list(FOOT_JOINTS)])
     return swing_rows(j, planted)
+
+
+def dataset_rows(ds, split: str | None = "train", stance_speed: float = 0.2) -> list:
+    """sequence_rows of every sequence of a `MotionDataset`'s split (its joints' resident pages
+    dropped after, as `windows.compute_stats` does)."""
+    rows = []
+    for seq in ds.split_sequences(split):
+        rows += sequence_rows(np.asarray(ds.joints[seq.start:seq.end]), np.asarray(ds.contact[seq.start:seq.end]),
+                              ds.fps, stance_speed)
+    release(ds.joints)
+    return rows
 
 
 def table(rows: Iterable[tuple[int, float, float]]) -> SwingRise | None:
@@ -91,10 +104,7 @@ def table(rows: Iterable[tuple[int, float, float]]) -> SwingRise | None:
     return SwingRise(length, rise, len(r))
 
 
-def measure(ds, split: str | None = "train") -> SwingRise | None:
+def measure(ds, split: str | None = "train", stance_speed: float = 0.2) -> SwingRise | None:
     """The swing table of a `MotionDataset`'s split, from its joints and contact labels (None:
     see `table`)."""
-    rows = []
-    for seq in ds.split_sequences(split):
-        rows += sequence_rows(np.asarray(ds.joints[seq.start:seq.end]), np.asarray(ds.contact[seq.start:seq.end]), ds.fps)
-    return table(rows)
+    return table(dataset_rows(ds, split, stance_speed))
