@@ -174,3 +174,4 @@ def test_training_saves_the_data_table_and_a_resumed_run_keeps_its_own():
     assert got.swings == 24
     assert swing_meta(_Walks(), {"swing_rise": EMBEDDED.state_dict()}) == {"swing_rise": EMBEDDED.state_dict()}
     assert swing_meta(_Walks(), {}) == {}                                             # a checkpoint from before
+    assert swing_meta(_Walks(), None, stance_speed=0.0) == {}                         # no frame slow enough: no plant

@@ -124,7 +124,7 @@ def set_up(cfg: DictConfig, run_dir: Path) -> Run:
     ckpt_path, state = _resume_checkpoint(tc, run_dir, info)
     ds, train_set, val_set = _data(cfg, tc, info, state)
     model, diffusion, meta = build_from_config(cfg, ds.joint_set, ds.action_names)
-    meta.update(swing_meta(ds, state))
+    meta.update(swing_meta(ds, state, train_set.cfg.stance_speed))
     model.to(device)
     ema = EMA(model, tc.ema_decay)
     opt = torch.optim.Adam(model.parameters(), lr=tc.lr, weight_decay=tc.weight_decay, fused=True)
@@ -205,13 +205,14 @@ def _data(cfg: DictConfig, tc: TrainConfig, info: dd.DistInfo, state: dict | Non
     return ds, train_set, val_set
 
 
-def swing_meta(ds: MotionDataset, state: dict | None) -> dict:
+def swing_meta(ds: MotionDataset, state: dict | None, stance_speed: float = 0.2) -> dict:
     """{"swing_rise": the training split's swing table} for the checkpoint (the sampler's swing
-    lift, `data/swing_rise.py`); a resumed run keeps its checkpoint's; {} when the data has no
+    lift, `data/swing_rise.py`), its plants from the stance labels the network learns
+    (`window.stance_speed`); a resumed run keeps its checkpoint's; {} when the data has no
     swing to measure (the sampler then takes the embedded dataset's)."""
     if state is not None:
         return {"swing_rise": state["swing_rise"]} if "swing_rise" in state else {}
-    table = swing_rise.measure(ds, "train")
+    table = swing_rise.measure(ds, "train", stance_speed)
     return {} if table is None else {"swing_rise": table.state_dict()}
 
 
