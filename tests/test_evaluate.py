@@ -158,6 +158,28 @@ def test_evaluate_end_to_end(ckpt, tmp_path):
     assert "`loop.project=False`, `loop.smooth=0.0`" in (out3 / "report.md").read_text()
 
 
+def _timeless(x):
+    """A report without its timings (the only thing two runs of the same evaluation differ in)."""
+    if isinstance(x, dict):
+        return {k: _timeless(v) for k, v in x.items() if k not in ("seconds", "seconds_per_pair", "wall_s", "jobs")}
+    return [_timeless(v) for v in x] if isinstance(x, list) else x
+
+
+def test_evaluate_jobs_give_the_report_of_one_process(ckpt, tmp_path):
+    """jobs=2: each setting in a worker process of its own; the report is the one-process run's,
+    figure for figure, and the plots are drawn."""
+    reps = {}
+    for jobs in (1, 2):
+        out = tmp_path / f"jobs{jobs}"
+        r = _run("evaluate.py", [f"ckpt={ckpt}", f"out={out}", f"jobs={jobs}", f"plots={jobs == 2}", *EVAL])
+        assert r.returncode == 0, r.stderr[-3000:]
+        reps[jobs] = json.loads((out / "report.json").read_text())
+    assert reps[2]["meta"]["jobs"] == 2 and list(reps[2]["settings"]) == list(SETTINGS)
+    assert all(len(reps[2]["settings"][st]["pairs"]) == 1 for st in SETTINGS)
+    assert _timeless(reps[2]) == _timeless(reps[1])
+    assert all((tmp_path / "jobs2" / "plots" / f"{st}_scene92.png").is_file() for st in SETTINGS)
+
+
 def check_ablation(block: dict, keys: list[str], setting: str) -> None:
     """The ablation rows of one setting: every stage, every figure, on the one pair; a stage that
     acts after the last episode leaves the episodes (the network's joints) as they were."""
@@ -242,6 +264,7 @@ def test_several_checkpoints_average_the_ablation_rows_too():
     (["mocap=/no/such/clips.bvh"], "mocap: /no/such/clips.bvh does not exist"),   # before the evaluation, not after
     (["ablate=[foot_lock,nope]"], "ablate: expected one of projection, seam_blend, foot_lock"),
     (["ablation_pairs=-1"], "ablation_pairs: expected an integer >= 0"),
+    (["jobs=0"], "jobs: expected an integer >= 1"),
     (["loop.seat_shift=maybe"], "loop.seat_shift: expected true or false"),
     (["loop.solve=newton"], "loop.solve: expected one of lbfgs, joint-space, refined"),
 ])

@@ -7,6 +7,10 @@ docs/evaluation.md explains every column."""
 from __future__ import annotations
 
 import dataclasses
+import multiprocessing
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,9 +25,10 @@ from motiongen.eval.evaluate_config import (EVALUATE_STEPS, EvaluateConfig, data
                                             protocol_config)
 from motiongen.eval.mocap import mocap_body_metrics
 from motiongen.eval.pairs import SETTINGS
-from motiongen.eval.protocol import evaluate
+from motiongen.eval.protocol import Evaluation, evaluate
 from motiongen.eval.report import build_report, log_tensorboard, markdown, write_report
-from motiongen.eval.seeds import aggregate_reports
+from motiongen.eval.scene_context import SceneContext
+from motiongen.eval.seeds import aggregate_reports, merge_settings
 from motiongen.importers.sources import open_dataset
 from motiongen.loading.build import LoadedModel
 from motiongen.loading.keys import checkpoint_paths, load_checkpoint_model
@@ -63,8 +68,12 @@ def evaluate_and_write(cfg: EvaluateConfig, out: Path, ckpts: list[Path], settin
         raise ConfigError(f"ckpt: the checkpoints were trained on different datasets ({', '.join(sorted(roots))}); "
                           "a mean over seeds needs one dataset (give data= to evaluate them all on one)")
     mocap_row = mocap_body_metrics(mocap, runs[0].ds.fps) if mocap else None
-    done = [evaluate_one(r, settings, mocap_row) for r in runs]
+    t0 = time.perf_counter()
+    done = evaluate_all(runs, settings, mocap_row, cfg.jobs, out)
     report = done[0][0] if len(done) == 1 else aggregate_reports([rep for rep, _ in done])
+    if cfg.jobs > 1:
+        # The parts ran side by side: the report's wall time is the run's, not their sum.
+        report["wall_s"], report["meta"]["jobs"] = time.perf_counter() - t0, cfg.jobs
     md = markdown(report)
     first = runs[0]
     title = f"{first.ckpt.name} step {first.loaded.step}" + (f" (1 of {len(runs)} checkpoints)" if len(runs) > 1 else "")
@@ -109,6 +118,40 @@ def evaluate_one(p: Prepared, settings: list[str], mocap_row: dict | None):
         meta["mocap_row"] = mocap_row
     report = build_report(ev, meta)
     report["meta"].pop("mocap_row", None)
+    return report, ev
+
+
+def evaluate_all(runs: list[Prepared], settings: list[str], mocap_row: dict | None, jobs: int,
+                 out: Path) -> list[tuple[dict, Evaluation]]:
+    """Every checkpoint's (report, Evaluation): in this process (jobs 1), or each (checkpoint,
+    setting) in a worker process, `jobs` at a time, merged per checkpoint (out: the report's
+    directory, which the workers check against their inputs as `prepare` does)."""
+    if jobs == 1:
+        return [evaluate_one(r, settings, mocap_row) for r in runs]
+    units = [(i, st) for i in range(len(runs)) for st in settings]
+    threads = runs[0].cfg.threads or max(1, (os.cpu_count() or 1) // jobs)
+    # spawn, not fork: a forked child would inherit torch's thread pools and OpenMP state.
+    pool = ProcessPoolExecutor(min(jobs, len(units)), mp_context=multiprocessing.get_context("spawn"))
+    try:
+        futures = [pool.submit(_evaluate_part, runs[i].cfg, runs[i].ckpt, out, st, mocap_row, threads) for i, st in units]
+        parts = [f.result() for f in futures]
+    finally:
+        pool.shutdown(cancel_futures=True)     # a part that failed: the queued ones are not started
+    merged = []
+    for i, run in enumerate(runs):
+        report, ev = merge_settings([part for part, (j, _) in zip(parts, units) if j == i])
+        ev.contexts = {sid: SceneContext(run.ds, sid, run.cfg.body_radius) for sid in run.scenes}   # for the plots
+        merged.append((report, ev))
+    return merged
+
+
+def _evaluate_part(cfg: EvaluateConfig, ckpt: Path, out: Path, setting: str, mocap_row: dict | None, threads: int):
+    """One checkpoint's evaluation in one setting, in a worker process: (its report, its
+    Evaluation without the scene contexts, which hold the dataset)."""
+    cfg = dataclasses.replace(cfg, threads=threads, progress=False)
+    torch.set_num_threads(threads)
+    report, ev = evaluate_one(prepare(cfg, ckpt, out, mocap_paths(cfg.mocap)), [setting], mocap_row)
+    ev.contexts = {}
     return report, ev
 
 

@@ -76,6 +76,11 @@ class EvaluateConfig(SamplerSettings, ProtocolConfig, EvaluateScope):
     loop: LoopOverrides = field(default_factory=LoopOverrides)
     # Outputs.
     out: str | None = None          # directory; default: the Hydra run directory
+    # Worker processes: each (checkpoint, setting) is evaluated in a process of its own, this
+    # many at a time, with one torch thread each unless `threads` is set (the protocol's small
+    # batches keep one core busy, not two). 1: everything in this process. The figures are those
+    # of jobs=1 at the same `threads`: a pair's noise is seeded by the pair alone.
+    jobs: int = 1
     run_dir: str | None = None      # a TensorBoard log directory (e.g. a training run's tb/) to log scalars and figures into
     plots: bool = True
     progress: bool = True           # tqdm progress bar
@@ -87,6 +92,7 @@ class EvaluateConfig(SamplerSettings, ProtocolConfig, EvaluateScope):
         check_sampler_settings(self)
         check_protocol_keys(self)
         require_range("threads", self.threads, 0, integer=True)
+        require_range("jobs", self.jobs, 1, 256, integer=True)
         require_choice("split", self.split, SPLITS)
         mocap_paths(self.mocap)
 

@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 
+from motiongen.eval.protocol import Evaluation
 from motiongen.eval.report import ROWS
 
 
@@ -61,3 +62,20 @@ def _row(rows: list[dict]) -> tuple[dict, dict, dict]:
     nums = _numbers(rows)
     stats = {k: _stats(v) for k, v in nums.items()}
     return {**rows[0], **{k: m for k, (m, _) in stats.items()}}, {k: s for k, (_, s) in stats.items()}, nums
+
+
+def merge_settings(parts: list[tuple[dict, Evaluation]]) -> tuple[dict, Evaluation]:
+    """One checkpoint's (report, Evaluation) from its runs of one setting each (`evaluate jobs=N`),
+    as one run of those settings in the order given would have made them. The Evaluation's
+    scene contexts stay empty: the parts come from other processes."""
+    reports, evs = [p[0] for p in parts], [p[1] for p in parts]
+    settings = [st for ev in evs for st in ev.settings]
+    notes = list(dict.fromkeys(n for ev in evs for n in ev.notes))
+    report = {**reports[0], "meta": {**reports[0]["meta"], "settings": settings}, "notes": notes,
+              "wall_s": sum(r["wall_s"] for r in reports),
+              "settings": {st: block for r in reports for st, block in r["settings"].items()}}
+    merged = lambda name: {st: v for ev in evs for st, v in getattr(ev, name).items()}   # noqa: E731
+    ev = Evaluation(settings, merged("pairs"), merged("results"), merged("references"), merged("model"),
+                    merged("reference"), merged("model_raw"), merged("ablation"), {}, notes,
+                    sum(ev.wall_s for ev in evs))
+    return report, ev
