@@ -10,7 +10,8 @@
 #
 # Checkpoints go to runs/<recipe>-s<seed> (resumed when there), the report to
 # runs/quality-<recipe>-<split>/report.md. PAIRS and K set the protocol's pairs per scene and
-# samples per pair (default 2 and 3: about 20 minutes per demo checkpoint on 2 CPU cores).
+# samples per pair (default 2 and 3: about 20 minutes per demo checkpoint on 2 CPU cores); JOBS the
+# evaluation's worker processes (default 2: `evaluate jobs=2`, the same figures sooner).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY="${VENV:-.venv}/bin/python"
@@ -24,5 +25,5 @@ for s in $SEEDS; do
   ckpts+=("$run/checkpoints/last.pt")
 done
 list=$(IFS=,; echo "${ckpts[*]}")
-"$PY" evaluate.py "ckpt=[$list]" "split=$SPLIT" "pairs=${PAIRS:-2}" "k=${K:-3}" progress=false \
+"$PY" evaluate.py "ckpt=[$list]" "split=$SPLIT" "pairs=${PAIRS:-2}" "k=${K:-3}" "jobs=${JOBS:-2}" progress=false \
   "out=runs/quality-$RECIPE-$SPLIT"
