@@ -7,6 +7,7 @@ from motiongen.scene.distance_field import surface_distance
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.metrics import (apd, body_metrics, contact_rate, floor_penetration, foot_skating_ratio,
                                     goal_distances, goal_success, heading_off_travel, lower_toe_height, mean_jerk, pskl,
+                                    walking_knee_angle,
                                     scene_penetration, seam_jump, trajectory_fail_rate)
 from motiongen.geometry import yaw_matrix
 from motiongen.skeleton import BODY_PARENTS, FOOT_JOINTS, LEFT_HIP, PELVIS, RIGHT_HIP
@@ -44,6 +45,31 @@ def walking(direction_deg: float, facing_deg: float, speed: float = 1.0, T: int 
     j[:, LEFT_HIP] = j[:, PELVIS] + across
     j[:, RIGHT_HIP] = j[:, PELVIS] - across
     return j
+
+
+def legs_bent(j: np.ndarray, knee_deg: float) -> np.ndarray:
+    """joints (T, 22, 3) with both legs hanging from their hips, thigh and shin 0.4 m, the knees
+    bent forward to an angle of knee_deg between thigh and shin (180: straight)."""
+    j = j.copy()
+    half = np.radians(knee_deg) / 2
+    for hip, knee, ankle in ((1, 4, 7), (2, 5, 8)):
+        j[:, knee] = j[:, hip] + 0.4 * np.array([0.0, -np.sin(half), np.cos(half)])
+        j[:, ankle] = j[:, knee] + 0.4 * np.array([0.0, -np.sin(half), -np.cos(half)])
+    return j
+
+
+def test_walking_knee_angle_is_the_angle_between_thigh_and_shin_while_walking():
+    """Knees bent to 150° (and 110°, a crouch) on a body walking at 1 m/s read 150° (110°);
+    straight legs 180°; a body that walks slower than 0.5 m/s, or stands, has no walking frame."""
+    for deg in (150.0, 110.0, 180.0):
+        assert walking_knee_angle(legs_bent(walking(30, 30), deg), FPS) == pytest.approx(deg, abs=1e-6)
+    # Only the walking frames count: a crouch while standing still does not.
+    j = legs_bent(walking(0, 0, T=61), 150.0)
+    j[31:, :, [0, 2]] = j[30][:, [0, 2]]
+    j[32:] = legs_bent(j[32:], 90.0)
+    assert walking_knee_angle(j, FPS) == pytest.approx(150.0, abs=1e-6)
+    assert np.isnan(walking_knee_angle(legs_bent(walking(0, 0, speed=0.3), 150.0), FPS))
+    assert np.isnan(walking_knee_angle(still(), FPS))
 
 
 def test_lower_toe_height_is_the_median_of_the_lower_toe():

@@ -74,7 +74,7 @@ def pskl_equal(gen, ref_half, fps: float, n: int) -> tuple[float, float, int]:
     return kab, kba, m
 
 
-BODY_KEYS = ("bone_cv", "bone_max_dev", "slide_mps", "foot_skating", "toe_height_m", "heading_deg",
+BODY_KEYS = ("bone_cv", "bone_max_dev", "slide_mps", "foot_skating", "toe_height_m", "heading_deg", "knee_walk_deg",
              "penetration_frames", "penetration_max_m", "mesh_penetration_frames", "mesh_penetration_max_m",
              "floor_penetration_frames", "jerk", "seam_ratio")
 

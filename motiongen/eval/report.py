@@ -23,6 +23,7 @@ BODY_METRICS = [
     ("foot_skating", "foot skating", "ratio", "↓"),
     ("toe_height_m", "lower toe height", "m", "≈ref"),
     ("heading_deg", "walk heading off travel", "°", "↓"),
+    ("knee_walk_deg", "walking knee angle", "°", "≈ref"),
     ("jerk", "mean jerk", "m/s³", "≈ref"),
     ("seam_ratio", "seam jump", "ratio", "≈ref"),
     ("penetration_frames", "scene pen. frames (joints)", "ratio", "↓"),

@@ -91,11 +91,12 @@ def summary_lines(motion: Motion, sampler: SamplerSettings, figures: dict | None
     if f:
         lines.append("body: bone-length CV {} (network {}), largest bone deviation {} (network {}), "
                      "grounded-toe slide {} m/s (network {}), foot skating {} (network {}), "
-                     "lower toe {} m up (network {}), walking {}° off its direction of travel (network {}°)".format(
-                         *[", ".join(f"{v:.3f}" if k != "heading_deg" else f"{v:.1f}" for v in f.get(tag + k, []))
+                     "lower toe {} m up (network {}), walking {}° off its direction of travel (network {}°) "
+                     "with its knees at {}° (network {}°)".format(
+                         *[", ".join(f"{v:.1f}" if k.endswith("_deg") else f"{v:.3f}" for v in f.get(tag + k, []))
                            or "n/a"
                            for k in ("bone_cv", "bone_max_dev", "slide_mps", "foot_skating", "toe_height_m",
-                                     "heading_deg")
+                                     "heading_deg", "knee_walk_deg")
                            for tag in ("", "network_")]))
     lines.append(f"wall time {motion.wall_time:.1f} s, real-time factor {motion.real_time_factor:.2f} "
                  f"({S} x {motion.duration:.1f} s of motion / {motion.wall_time:.1f} s)")
