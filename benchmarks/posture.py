@@ -13,33 +13,17 @@ import numpy as np
 
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.importers.sources import DataConfig, open_dataset
-from motiongen.skeleton import BODY_PARENTS
+from motiongen.metrics import bone_lengths, knee_angles
+from motiongen.skeleton import BODY_PARENTS, HEAD, PELVIS
 
 SPEC = {"motion": (list, []), "split": (str, None), "episodes": (bool, True)}
-KIDS = [c for c, p in enumerate(BODY_PARENTS) if p >= 0]
-HEAD = 15
-
-
-def bone_lengths(j: np.ndarray) -> np.ndarray:
-    """(T, B) bone lengths of joints (T, 22, 3)."""
-    return np.linalg.norm(j[:, KIDS] - j[:, [BODY_PARENTS[c] for c in KIDS]], axis=-1)
-
-
-def knee_angle(j: np.ndarray) -> np.ndarray:
-    """(T,) mean of the two knees' angles (degrees; 180 = straight) of joints (T, 22, 3)."""
-    out = []
-    for hip, knee, ankle in ((1, 4, 7), (2, 5, 8)):
-        u, v = j[:, hip] - j[:, knee], j[:, ankle] - j[:, knee]
-        cos = (u * v).sum(-1) / (np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1))
-        out.append(np.degrees(np.arccos(np.clip(cos, -1, 1))))
-    return np.mean(out, 0)
 
 
 def motion_posture(path: str, episodes: bool) -> None:
     z = np.load(path)
     net, out = (z[k][0, :, :22].astype(np.float64) for k in ("joints_raw", "joints"))          # (T, 22, 3)
-    scale = (bone_lengths(net) / bone_lengths(out)).mean(1)                                # (T,)
-    knee, pelvis, head = knee_angle(out), out[:, 0, 1], out[:, HEAD, 1]
+    scale = (bone_lengths(net, BODY_PARENTS) / bone_lengths(out, BODY_PARENTS)).mean(1)      # (T,)
+    knee, pelvis, head = knee_angles(out), out[:, PELVIS, 1], out[:, HEAD, 1]
     print(f"{path}: knee median {np.median(knee):.0f}°, pelvis {np.median(pelvis):.2f} m, head {np.median(head):.2f} m, "
           f"network bone scale median {np.median(scale):.2f} (lowest episode "
           f"{min(scale[a:b].mean() for a, b in spans(z, len(out))):.2f})")
@@ -63,7 +47,7 @@ def data_posture(split: str) -> None:
             continue
         j = np.asarray(ds.joints[s.start:s.end], np.float64)[:, :22]
         on = np.asarray(ds.actions[s.start:s.end], bool)[:, walk]
-        knee.append(knee_angle(j[on])), pelvis.append(j[on, 0, 1]), head.append(j[on, HEAD, 1])
+        knee.append(knee_angles(j[on])), pelvis.append(j[on, PELVIS, 1]), head.append(j[on, HEAD, 1])
     k, p, h = (np.concatenate(x) for x in (knee, pelvis, head))
     print(f"data, {split} split, walking frames: knee median {np.median(k):.0f}° (10th-90th percentile "
           f"{np.percentile(k, 10):.0f}-{np.percentile(k, 90):.0f}°), pelvis {np.median(p):.2f} m, head {np.median(h):.2f} m")

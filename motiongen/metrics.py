@@ -149,14 +149,19 @@ def walking_knee_angle(joints, fps: float, min_speed: float = 0.5) -> float:
         return float("nan")
     speed = np.linalg.norm((j[2:, PELVIS] - j[:-2, PELVIS])[:, [0, 2]], axis=-1) * fps / 2    # (T-2,)
     w = j[1:-1][speed > min_speed]                                                          # (N, J, 3)
-    if not len(w):
-        return float("nan")
+    return float(np.median(knee_angles(w))) if len(w) else float("nan")
+
+
+def knee_angles(joints) -> np.ndarray:
+    """(T,) the two knees' mean angle between thigh and shin (degrees; 180 = straight) of
+    joints (T, J, 3), frame by frame."""
+    j = _joints(joints)
     angles = []
     for hip, knee, ankle in LEGS:
-        u, v = w[:, hip] - w[:, knee], w[:, ankle] - w[:, knee]
+        u, v = j[:, hip] - j[:, knee], j[:, ankle] - j[:, knee]
         cos = (u * v).sum(-1) / np.maximum(np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1), 1e-12)
         angles.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-    return float(np.median(np.mean(angles, 0)))
+    return np.mean(angles, 0)
 
 
 def lower_toe_height(joints, floor_y: float = 0.0, foot_joints: Sequence[int] = TOE_JOINTS) -> float:
@@ -433,7 +438,8 @@ def pskl(a, b, fps: float, length: int | None = None, eps: float = 1e-12) -> tup
 
 
 __all__ = ["TOE_JOINTS", "bone_lengths", "BoneConsistency", "bone_consistency", "grounded_slide",
-           "heading_off_travel_angles", "lower_toe_height", "heading_off_travel", "walking_knee_angle", "body_metrics",
+           "heading_off_travel_angles", "lower_toe_height", "heading_off_travel", "walking_knee_angle", "knee_angles",
+           "body_metrics",
            "finite_mean", "finite_median", "foot_skating_frames", "foot_skating_ratio", "goal_distances", "goal_success",
            "trajectory_fail_rate", "scene_penetration", "floor_penetration",
            "DEFAULT_CONTACT_PARTS", "DEFAULT_SKIN_OFFSET", "contact_rate", "apd", "mean_jerk",
