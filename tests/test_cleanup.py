@@ -47,3 +47,22 @@ def test_a_planted_foot_is_held_where_foot_height_says(bm, height):
     want = raw[0, left, 1] if height == "network" else state.frames[0][0, 0, left, 1]
     np.testing.assert_allclose(out[:, left, 1], np.broadcast_to(want, (len(out), 2)), atol=0.003)
     assert np.ptp(out[:, left], axis=0).max() < 0.003
+
+
+def test_smoothing_goes_by_the_model_rate(bm):
+    """`loop.smooth` unset: a 15 fps model's joints are smoothed before the final solve (its
+    jittering wrist moves less than with smooth=0), a 10 fps model's are not (smooth=0's joints,
+    bit for bit). Without a body, so the output is the joints the solve would start from."""
+    state, _ = _episodes(bm)
+    state.body = None
+    wrist = BODY.index("left_wrist")
+    state.frames[0][0, 1::2, wrist, 0] += 0.03                              # 3 cm of frame-to-frame jitter
+    layout = SimpleNamespace(contact_joints=FOOT_JOINTS, num_contacts=4)
+    plan = SimpleNamespace(names=["walk"], goals=[])
+
+    def out(fps, **kw):
+        return clean_up(state, layout, fps, plan, LoopConfig(project=False, **kw), None, None).joints[0]
+
+    jitter = lambda x: np.abs(np.diff(x[:, wrist, 0], 2)).mean()           # noqa: E731
+    assert jitter(out(15.0)) < 0.5 * jitter(out(15.0, smooth=0.0))
+    np.testing.assert_array_equal(out(10.0), out(10.0, smooth=0.0))

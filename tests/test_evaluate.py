@@ -262,7 +262,7 @@ def test_several_checkpoints_average_the_ablation_rows_too():
     (["min_distance=-1"], "min_distance: expected a number >= 0"),
     (["k=abc"], "k: expected an integer, got 'abc'"),
     (["mocap=/no/such/clips.bvh"], "mocap: /no/such/clips.bvh does not exist"),   # before the evaluation, not after
-    (["ablate=[foot_lock,nope]"], "ablate: expected one of projection, seam_blend, foot_lock"),
+    (["ablate=[foot_lock,nope]"], "ablate: expected one of projection, body_scale, seam_blend, foot_lock"),
     (["ablation_pairs=-1"], "ablation_pairs: expected an integer >= 0"),
     (["jobs=0"], "jobs: expected an integer >= 1"),
     (["loop.seat_shift=maybe"], "loop.seat_shift: expected true or false"),

@@ -293,7 +293,7 @@ def test_clean_up_variants_equal_runs_with_that_clean_up():
 
     loaded = _loaded()
     goals = [Goal([1.5, 2.0]), Goal([0.0, 3.5], "sit", 1.0)]
-    loop = LoopConfig(stall_s=None)
+    loop = LoopConfig(stall_s=None, smooth=2.0)                  # on whatever the model rate
     off = {"smoothing": dataclasses.replace(loop, smooth=0.0), "seat_height": dataclasses.replace(loop, seat_shift=False)}
     kw = dict(sampler=SamplerSettings("ddim", 2))
     both = _generate(loaded, goals, loop=loop, cleanups=off, generator=torch.Generator().manual_seed(0), **kw)

@@ -36,6 +36,7 @@ class LoopOverrides:
     default, which is what `sample` uses."""
 
     project: bool | None = None     # false: the network's joints, no body (nor final solve)
+    body_scale: bool | None = None  # false: windows projected at the network's size (the body crouches under a smaller one)
     foot_lock: bool | None = None   # false: no foot locking in the final solve
     foot_height: str | None = None  # network | body | free: the height a planted foot is held at
     pin_goal: bool | None = None    # true: write the goal pelvis into the result (the public code)

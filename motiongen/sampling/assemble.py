@@ -57,6 +57,16 @@ def solve_smoothness_for_rate(model_fps: float) -> float:
     return 200.0 if model_fps >= SMOOTHABLE_FPS - 1e-6 else 50.0
 
 
+def smoothing_for_rate(model_fps: float) -> float:
+    """`loop.smooth` = None: the Gaussian sigma (output frames) over the non-foot joints before
+    the final solve. At SMOOTHABLE_FPS or more, 2: the network's frame-level jitter lies above
+    the body's own motion and smoothing it out brings the output's spectrum closer to the
+    data's. Below, off: a 10 fps model's jitter shares the legs' band, and on the validation
+    scenes the quality recipe's PSKL is lowest without smoothing (docs/results.md, "Smoothing at
+    10 fps, again")."""
+    return 2.0 if model_fps >= SMOOTHABLE_FPS - 1e-6 else 0.0
+
+
 # The joint-space solve (`loop.solve=joint-space`) reaches the minimum the L-BFGS solve stops
 # short of, so the same weight filters far more: 200 leaves nothing of the body's 2-5 Hz steps.
 # Its weights, chosen on the validation scenes (docs/results.md): the body's acceleration 10

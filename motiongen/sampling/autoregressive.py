@@ -167,7 +167,8 @@ def run_episode(spec: LoopSpec, loaded, query: SceneQuery, body_model, state: Ep
         between()
     if body_model is not None and state.body is None:
         state.body = MotionBody.estimate(body_model, loaded.joint_set, raw)
-    world, stance, rot = project_window(raw, stance, state.tail, inputs.pinned, spec.blend_frames, state.body)
+    world, stance, rot = project_window(raw, stance, state.tail, inputs.pinned, spec.blend_frames, state.body,
+                                        spec.body_scale)
     record_episode(state, spec, t.kind, t.target,
                    Window(inputs.pinned, inputs.to_world, raw, world, stance, rot, inputs.labels))
 

@@ -14,7 +14,8 @@ import torch
 from scipy.ndimage import gaussian_filter1d
 
 from motiongen.body.solve import SOLVE_CONFIG
-from motiongen.sampling.assemble import output_times, planted_at_output, resample, solve_bodies, solve_weights
+from motiongen.sampling.assemble import (output_times, planted_at_output, resample, smoothing_for_rate, solve_bodies,
+                                         solve_weights)
 from motiongen.sampling.episode import EpisodeState
 from motiongen.sampling.hand_clearance import PUSH_SMOOTHING, settle_hands
 from motiongen.sampling.interactions import hand_targets, merge_targets, seat_shift
@@ -47,8 +48,9 @@ def clean_up(state: EpisodeState, layout, model_fps: float, plan: GoalPlan, loop
     raw_out = resample(np.concatenate(state.raws, 1), model_fps, loop.out_fps)
     planted = planted_at_output(np.concatenate(state.stances, 1), out, layout.contact_joints, model_fps,
                                 loop.out_fps) if layout.num_contacts else None
-    if loop.smooth > 0:
-        out = smooth_non_feet(out, loop.smooth, layout.contact_joints)
+    sigma = smoothing_for_rate(model_fps) if loop.smooth is None else float(loop.smooth)
+    if sigma > 0:
+        out = smooth_non_feet(out, sigma, layout.contact_joints)
     labels = model_labels[:, near]                                                          # (S, T)
     seats = [None] * out.shape[0]
     if loop.project and loop.seat_shift:

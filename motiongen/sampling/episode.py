@@ -50,6 +50,7 @@ class LoopSpec:
     reach: float                   # m: farther targets are clamped (`model_reach`)
     predict_goal: bool             # the network predicts the goal entries (else they are written in)
     blend_frames: int              # free frames over which the seam's velocity jump fades
+    body_scale: bool               # each window's skeleton scaled to the body's before projection
     start_frame: np.ndarray        # (4, 4) local -> world of the first window: the start pose
     device: torch.device           # the network's
     sampler: SamplerSettings
@@ -73,7 +74,7 @@ def loop_spec(loaded, route: Route, num_samples: int, loop: LoopConfig, start_ya
     model_fps = loaded.model_fps if loop.source_fps is None else float(loop.source_fps) / loaded.window.stride
     blend_s = LoopConfig.seam_blend if loop.seam_blend is None else float(loop.seam_blend)
     return LoopSpec(num_samples, L, loaded.layout.channels, k, model_fps, model_reach(loaded.stats, loop),
-                    loaded.predict_goal and not loop.pin_goal, round(blend_s * model_fps),
+                    loaded.predict_goal and not loop.pin_goal, round(blend_s * model_fps), loop.body_scale,
                     start_frame(route, start_yaw), next(loaded.model.parameters()).device, sampler, generator)
 
 

@@ -116,7 +116,7 @@ def check_loop(loop: LoopConfig) -> None:
     r("loop.max_episodes", loop.max_episodes, 1, 100000, integer=True)
     require_fps("loop.out_fps", loop.out_fps)
     require_fps("loop.source_fps", loop.source_fps, allow_none=True)
-    r("loop.smooth", loop.smooth, 0, 1000)
+    r("loop.smooth", loop.smooth, 0, 1000, allow_none=True)
     r("loop.seam_blend", loop.seam_blend, 0, 60, allow_none=True)
     r("loop.solve_smoothness", loop.solve_smoothness, 0, allow_none=True)
     require_choice("loop.solve", loop.solve, SOLVE_METHODS)

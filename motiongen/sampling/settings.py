@@ -82,6 +82,10 @@ class LoopConfig:
     out_fps: float = DATA_FPS
     source_fps: float | None = None  # rate of the training data (before stride); None = the checkpoint's
     project: bool = True           # one body: each episode projected onto it, and the final solve
+    # Each window's skeleton scaled to the body's size before it is projected (sampling/
+    # projection.py, `scale_to_body`): the body then stands as tall as the network's pose says
+    # instead of bending its legs under a smaller network skeleton. Needs a body (project).
+    body_scale: bool = True
     foot_lock: bool = True         # the final solve holds predicted planted feet in place
     # The height a planted foot is held at: the network's own prediction ("network"), the
     # projected body's ("body": 1-2 cm higher where the body's legs are shorter than the
@@ -89,7 +93,9 @@ class LoopConfig:
     # travel further than its stride; docs/results.md, "The output's feet float").
     foot_height: str = "network"
     pin_goal: bool = False         # write the goal into the result (the public code); default: the model predicts it
-    smooth: float = 2.0            # Gaussian sigma (output frames) over the non-foot joints before the final solve; 0 = off
+    # Gaussian sigma (output frames) over the non-foot joints before the final solve; 0 = off;
+    # None = by the model's frame rate (assemble.smoothing_for_rate: 2 at 15 fps or more, off below).
+    smooth: float | None = None
     # Seconds over which each episode's first free frames take on the pinned frames' velocity
     # (assemble.blend_seam); 0 = off; None = this default. On at every model rate: with the final
     # solve's swing clearance the 10 fps models gain from it as the 15 fps demo does (docs/quality.md).
@@ -136,6 +142,7 @@ class LoopConfig:
 # same episodes (`generate(cleanups=)`).
 CLEANUP_STAGES: dict[str, dict] = {
     "projection": {"project": False},
+    "body_scale": {"body_scale": False},
     "seam_blend": {"seam_blend": 0.0},
     "foot_lock": {"foot_lock": False},
     "foot_height": {"foot_height": "free"},
@@ -146,7 +153,7 @@ CLEANUP_STAGES: dict[str, dict] = {
     "hand_reach": {"hand_actions": ()},
     "seat_height": {"seat_shift": False},
 }
-IN_LOOP_STAGES = ("projection", "seam_blend", "hand_goal")
+IN_LOOP_STAGES = ("projection", "body_scale", "seam_blend", "hand_goal")
 # The LoopConfig fields only the clean-up after the last episode reads.
 POST_LOOP_FIELDS = frozenset({"foot_lock", "foot_height", "swing_clearance", "swing_lift", "smooth", "hand_actions", "seat_shift",
                               "solve_smoothness", "solve"})
