@@ -193,10 +193,33 @@ def check_ablation(block: dict, keys: list[str], setting: str) -> None:
     assert abl["model_raw"]["bone_max_dev"] == block["model_raw"]["bone_max_dev"]
     # without the body, bones stretch; with it, every variant of the clean-up keeps one body
     assert abl["projection"]["bone_max_dev"] > 1e-3 > max(abl[s]["bone_max_dev"] for s in CLEANUP_STAGES if s != "projection")
-    # no hand action in the static setting: switching the hand reach off changes nothing
-    if setting == "static":
-        same = {k: v for k, v in abl["hand_reach"].items() if k != "seconds_per_pair"}
-        assert same == {k: v for k, v in abl["model"].items() if k != "seconds_per_pair"}
+    # no hand action in the static setting, no seat in the dynamic one: switching the hand reach
+    # or the seat height off there changes nothing
+    idle = "hand_reach" if setting == "static" else "seat_height"
+    same = {k: v for k, v in abl[idle].items() if k != "seconds_per_pair"}
+    assert same == {k: v for k, v in abl["model"].items() if k != "seconds_per_pair"}
+
+
+def test_an_ablation_stage_with_nothing_to_act_on_is_the_output():
+    """The stages whose row is the output itself, without sampling or solving again: no pick-up
+    for the hand reach, no seat for the seat height, no smoothing at a 10 fps model's rate
+    (loop.smooth unset), no hand goal for a checkpoint trained without them."""
+    from types import SimpleNamespace as NS
+
+    from motiongen.eval.pair_runs import stage_can_act
+    from motiongen.sampling import LoopConfig
+
+    loop = LoopConfig()
+    sit = NS(route=NS(goals=[NS(action="walk"), NS(action="sit")]))
+    pick = NS(route=NS(goals=[NS(action="pick up")]))
+    at = lambda fps, hands=False: NS(model_fps=fps, mask=NS(hand_goals=hands))   # noqa: E731
+    assert stage_can_act("seat_height", at(15), sit, loop) and not stage_can_act("seat_height", at(15), pick, loop)
+    assert stage_can_act("hand_reach", at(15), pick, loop) and not stage_can_act("hand_reach", at(15), sit, loop)
+    assert stage_can_act("smoothing", at(15), sit, loop) and not stage_can_act("smoothing", at(10), sit, loop)
+    assert stage_can_act("smoothing", at(10), sit, LoopConfig(smooth=1.0))
+    assert stage_can_act("hand_goal", at(15, True), pick, loop) and not stage_can_act("hand_goal", at(15), pick, loop)
+    assert not stage_can_act("hand_goal", at(15, True), sit, loop)
+    assert all(stage_can_act(s, at(10), sit, loop) for s in ("projection", "foot_lock", "seam_blend", "swing_lift"))
 
 
 def test_evaluate_over_several_checkpoints_reports_mean_and_spread(ckpt, tmp_path, capsys):

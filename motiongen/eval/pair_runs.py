@@ -18,6 +18,7 @@ from motiongen.eval.motion_scores import MeshInput, goal_metrics, motion_metrics
 from motiongen.eval.pairs import Pair, ProtocolConfig, pair_seed
 from motiongen.eval.scene_context import SceneContext
 from motiongen.sampling import LoopConfig, generate
+from motiongen.sampling.assemble import smoothing_for_rate
 from motiongen.sampling.settings import CLEANUP_STAGES, IN_LOOP_STAGES, Motion
 
 
@@ -75,13 +76,14 @@ def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler
     output's own body and on a body put on the network's joints."""
     loop = pair_loop(ctx, cfg)
     stages = list(cfg.ablate) if pair.index < cfg.ablation_pairs else []
-    after = {s: dataclasses.replace(loop, **CLEANUP_STAGES[s]) for s in stages if s not in IN_LOOP_STAGES}
+    acting = [s for s in stages if stage_can_act(s, loaded, pair, loop)]
+    after = {s: dataclasses.replace(loop, **CLEANUP_STAGES[s]) for s in acting if s not in IN_LOOP_STAGES}
     motion, wall = sample_pair(loaded, ctx, pair, cfg, sampler, body_model, loop, after)
     out, raw = measure(motion, ctx, pair, cfg, meshes), measure(motion, ctx, pair, cfg, meshes, raw=True)
     ablation = {s: measure(motion.variants[s], ctx, pair, cfg, meshes) for s in after}
     for s in stages:
-        if s == "hand_goal" and not gives_hand_goals(loaded, pair, loop):
-            ablation[s] = out                      # nothing to switch off: the same episodes
+        if s not in acting:
+            ablation[s] = out                      # nothing to switch off: the output itself
         elif s in IN_LOOP_STAGES:
             # The stage shapes what the next episode sees: sample again, same pair, same noise.
             again, _ = sample_pair(loaded, ctx, pair, cfg, sampler, body_model,
@@ -89,6 +91,23 @@ def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler
             ablation[s] = measure(again, ctx, pair, cfg, meshes)
     return PairResult(pair, out.per_sample, raw.per_sample, out.apd, motion.joints, out.kept, raw.kept,
                       out.completed, wall, {s: ablation[s] for s in stages})
+
+
+def stage_can_act(stage: str, loaded, pair: Pair, loop: LoopConfig) -> bool:
+    """Whether switching `stage` off can change this pair's output. A stage with nothing to act
+    on (no hand goal given, no pick-up for the hand reach, no seat for the seat height, no
+    smoothing at the model's rate) has the output itself as its ablation row: sampling or
+    solving again would give the same motion bit for bit, at the cost of a final solve."""
+    actions = {g.action for g in pair.route.goals}
+    if stage == "hand_goal":
+        return gives_hand_goals(loaded, pair, loop)
+    if stage == "hand_reach":
+        return bool(actions & set(loop.hand_actions))
+    if stage == "seat_height":
+        return bool(actions & set(loop.seat_actions))
+    if stage == "smoothing":
+        return (smoothing_for_rate(loaded.model_fps) if loop.smooth is None else float(loop.smooth)) > 0
+    return True
 
 
 def gives_hand_goals(loaded, pair: Pair, loop) -> bool:
