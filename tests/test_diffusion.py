@@ -395,24 +395,6 @@ def test_sample_known_mask_draws_either_hand():
     assert torch.equal(plain, again)
 
 
-
-def test_facing_goal_pins_both_hips_x_z_at_the_last_frame_where_a_pelvis_goal_is_given():
-    """mask.p_facing: the hips' x, z (joints 1 and 2: channels 3, 5, 6, 8) at the last frame,
-    drawn only for windows with a pelvis goal; a config without it draws what it drew before."""
-    m = known_mask(2, 5, 22, goal_xz=True, facing=torch.tensor([True, False]))
-    assert m[0, -1].nonzero().flatten().tolist() == [0, 2, 3, 5, 6, 8]
-    assert m[1, -1].nonzero().flatten().tolist() == [0, 2] and not m[:, :-1].any()
-    with pytest.raises(ConfigError, match="facing goal needs the hips"):
-        known_mask(1, 5, 2, facing=True)
-    cfg = MaskConfig(p_goal_xz=0.8, p_facing=0.5)
-    m = sample_known_mask(4000, 16, 22, cfg, torch.Generator().manual_seed(0))
-    goal, face = m[:, -1, 0], m[:, -1, 3]
-    assert torch.equal(face, m[:, -1, 8]) and not (face & ~goal).any()
-    assert float(face.float().mean()) == pytest.approx(0.4, abs=0.03)
-    plain = sample_known_mask(64, 16, 22, MaskConfig(), torch.Generator().manual_seed(3))
-    again = sample_known_mask(64, 16, 22, MaskConfig(p_facing=0.0), torch.Generator().manual_seed(3))
-    assert torch.equal(plain, again)
-
 def test_windows_that_end_in_a_hand_action_get_their_reaching_wrist_as_goal():
     """mask.p_hand_action = 1: every acting window gets a goal on the wrist it names, the others
     only the random hand goals of p_hand (0 here)."""

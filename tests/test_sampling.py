@@ -338,34 +338,3 @@ def test_pick_up_episodes_give_the_network_the_hand_goal_it_was_trained_on():
     assert len(given) >= 2 and np.all((given > 0.03) & (given < 0.03 + 0.01)), given   # 3 cm off the skin (voxel centres +0.5 cm)
     for off in (run(0.5, ()), run(0.0)):
         assert np.all(off > 0.3), off
-
-
-def test_a_checkpoint_trained_with_facing_goals_is_turned_towards_what_it_reaches_for():
-    """mask.p_facing > 0: each pick-up episode also gives the hips' x, z at the window's last
-    frame, about the pelvis goal as the body holds them, turned to face the hand goal. The cup
-    stands 0.7 m to the +x side of the goal (the T-pose faces +z), so the oracle, which predicts
-    what it is given, ends each pick-up facing +x; without facing goals it keeps facing +z."""
-    n = 8
-    ii, kk = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
-    cup = OccupancyGrid.from_dense(np.repeat((((ii - 3.5) ** 2 + (kk - 3.5) ** 2) <= 3.5 ** 2)[:, None, :], 10, 1),
-                                   [-0.04, 0.0, -0.04], 0.01)
-    cup_pose = np.eye(4)
-    cup_pose[:3, 3] = [0.7, 0.9, 2.0]
-
-    def end_yaw(p_facing):
-        loaded = _loaded(predict_goal=True)
-        loaded.action_names = ["walk", "sit", "pick up"]
-        loaded.mask = MaskConfig(max_transition=2, p_hand=0.5, hand_joints=HAND_JOINTS, p_facing=p_facing)
-        m = _generate(loaded, [Goal([0.0, 2.0], "pick up", 3.0)], objects=[(cup, cup_pose)],
-                      generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 2),
-                      loop=LoopConfig(stall_s=None, project=False))
-        ends = np.stack([e.raw[0, -1] for e in m.episodes if e.kind == "act"])           # (A, J, 3)
-        hips = ends[:, LEFT_HIP] - ends[:, RIGHT_HIP]
-        return np.degrees(np.arctan2(-hips[:, 2], hips[:, 0])), ends
-
-    yaw, ends = end_yaw(0.5)
-    assert len(yaw) >= 2 and np.all(np.abs(yaw - 90.0) < 8.0), yaw                       # facing the cup
-    goal = ends[:, PELVIS, [0, 2]]
-    assert np.allclose(0.5 * (ends[:, LEFT_HIP] + ends[:, RIGHT_HIP])[:, [0, 2]], goal, atol=0.05)   # about the pelvis
-    yaw0, _ = end_yaw(0.0)
-    assert np.all(np.abs(yaw0) < 8.0), yaw0

@@ -99,17 +99,6 @@ def test_hand_goal_weight_falls_on_the_named_wrist_over_the_last_quarter():
     assert ((w == 1) | (w == 10)).all() and hand_goal_weights(m, (20, 21), 1.0) is None
 
 
-def test_facing_goal_weight_falls_on_the_hips_x_z_over_the_last_quarter():
-    """Window 0 has a facing goal and a left-wrist goal, window 1 neither: the facing weight is on
-    both hips' x, z (channels 3, 5, 6, 8) over the last 2 of 8 frames, the hand's where it was."""
-    m = known_mask(2, 8, 22, 2, True, False, torch.tensor([True, False]), 20, facing=torch.tensor([True, False]))
-    w = hand_goal_weights(m, (20, 21), 10.0, facing_weight=5.0)
-    assert (w == 5).nonzero().tolist() == [[0, f, c] for f in (6, 7) for c in (3, 5, 6, 8)]
-    assert (w == 10).nonzero().tolist() == [[0, f, c] for f in (6, 7) for c in (60, 61, 62)]
-    assert ((w == 1) | (w == 5) | (w == 10)).all()
-    assert hand_goal_weights(m, (20, 21), 1.0, facing_weight=1.0) is None
-
-
 
 def test_resume_restores_rngs_and_reseeds_noise_from_another_device(capsys):
     """A checkpoint's RNG states come back exactly; a noise generator state written on another

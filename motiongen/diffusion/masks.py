@@ -15,9 +15,6 @@ import torch
 from torch import Tensor
 
 from motiongen.errors import ConfigError
-from motiongen.skeleton import LEFT_HIP, RIGHT_HIP
-
-FACING_JOINTS = (LEFT_HIP, RIGHT_HIP)   # their last-frame x, z say which way the body ends up facing
 
 
 @dataclass
@@ -38,11 +35,6 @@ class MaskConfig:
     # the network learns to ignore them.
     p_hand_action: float = 0.0
     hand_actions: tuple = ("pick up",)
-    # A facing goal, with this probability, for windows given a pelvis goal (x, z): both hips'
-    # x, z at the last frame, so the body can be asked to end the window facing a direction (the
-    # sampler faces what a hand reaches for). Without it the network ends a pick-up turned
-    # whichever way it arrived, and misses the hand goal it would follow facing the object.
-    p_facing: float = 0.0
     goal_joint: int = 0         # pelvis
     # True: goal entries condition the model and are part of its loss, and samplers keep the
     # model's own prediction there (only transition frames are written into the result), so
@@ -55,11 +47,6 @@ class MaskConfig:
         return self.p_hand > 0 or self.p_hand_action > 0
 
     @property
-    def facing_goals(self) -> bool:
-        """Whether a model trained with this config takes a facing goal (the hips' x, z)."""
-        return self.p_facing > 0
-
-    @property
     def goal_hands(self) -> tuple[int, ...]:
         """The joints a hand goal may go to: `hand_joints`, else `hand_joint`."""
         return tuple(self.hand_joints) or (self.hand_joint,)
@@ -68,13 +55,11 @@ class MaskConfig:
 def known_mask(batch: int, window: int, num_joints: int, transition: int | Tensor = 0,
                goal_xz: bool | Tensor = False, goal_y: bool | Tensor = False,
                hand: bool | Tensor = False, hand_joint: int | Tensor = 21, goal_joint: int = 0,
-               device: torch.device | str = "cpu", channels: int | None = None, *,
-               facing: bool | Tensor = False) -> Tensor:
+               device: torch.device | str = "cpu", channels: int | None = None) -> Tensor:
     """(B, L, D) bool, D = `channels` (default 3J). Scalars apply to the whole batch; (B,) tensors per sample.
 
     transition k: first k frames, all channels. goal_xz / goal_y: last frame, ``goal_joint``
     x, z / y. hand: last frame, ``hand_joint`` x, y, z (one joint, or (B,) one per sample).
-    facing: last frame, x, z of both hips (`FACING_JOINTS`).
     """
     B, L, J = batch, window, num_joints
     hand_j = torch.as_tensor(hand_joint, device=device).to(torch.long).expand(B)              # (B,)
@@ -94,13 +79,6 @@ def known_mask(batch: int, window: int, num_joints: int, transition: int | Tenso
     mask[:, -1, g + 0] |= as_b(goal_xz, torch.bool)
     mask[:, -1, g + 2] |= as_b(goal_xz, torch.bool)
     mask[:, -1, g + 1] |= as_b(goal_y, torch.bool)
-    face = as_b(facing, torch.bool)                                                           # (B,)
-    if bool(face.any()):
-        if max(FACING_JOINTS) >= J:
-            raise ConfigError(f"a facing goal needs the hips (joints {FACING_JOINTS}), the joint set has {J}")
-        for j in FACING_JOINTS:
-            mask[:, -1, 3 * j + 0] |= face
-            mask[:, -1, 3 * j + 2] |= face
     rows = torch.nonzero(has_hand)[:, 0]                                                     # samples with a hand goal
     for c in range(3):
         mask[rows, -1, 3 * hand_j[rows] + c] = True
@@ -134,12 +112,8 @@ def sample_known_mask(batch: int, window: int, num_joints: int, cfg: MaskConfig 
         acting, wrist = (a.to(gen_device) for a in action_hand)
         given = acting & (torch.rand(batch, generator=generator, device=gen_device) < cfg.p_hand_action)
         hand, hand_joint = hand | given, torch.where(given, wrist, hand_joint)
-    facing = False
-    if cfg.p_facing > 0:
-        # drawn only here: configs without facing goals keep the generator's sequence
-        facing = (goal_xz & (torch.rand(batch, generator=generator, device=gen_device) < cfg.p_facing)).to(device)
     return known_mask(batch, window, num_joints, k.to(device), goal_xz.to(device), goal_y.to(device),
-                      hand.to(device), hand_joint.to(device), cfg.goal_joint, device, channels, facing=facing)
+                      hand.to(device), hand_joint.to(device), cfg.goal_joint, device, channels)
 
 
 def transition_mask(mask: Tensor) -> Tensor:

@@ -11,7 +11,7 @@ from motiongen.data.representation import Layout
 from motiongen.data.swing_rise import SwingRise
 from motiongen.data.windows import NormStats, WindowConfig
 from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, sample
-from motiongen.diffusion.masks import FACING_JOINTS, MaskConfig, predicts_goal, replace_mask, sample_known_mask
+from motiongen.diffusion.masks import MaskConfig, predicts_goal, replace_mask, sample_known_mask
 from motiongen.errors import ConfigError, DataError, MotiongenError
 from motiongen.importers.sources import DataConfig
 from motiongen.loading.checkpoint import load_checkpoint
@@ -258,12 +258,11 @@ def loss_channel_weights(tc, channels: int, device) -> torch.Tensor | None:
     return w
 
 
-def hand_goal_weights(known_mask: torch.Tensor, hands, weight: float, facing_weight: float = 1.0) -> torch.Tensor | None:
+def hand_goal_weights(known_mask: torch.Tensor, hands, weight: float) -> torch.Tensor | None:
     """(B, L, D) loss weights: `weight` on the x, y, z of the wrist whose last-frame entries
-    known_mask (B, L, D) gives (a hand goal on one of the joints `hands`) and `facing_weight`
-    on the hips' x, z where it gives a facing goal (`FACING_JOINTS`), over the window's last
-    quarter, 1 elsewhere; None when both are 1 (the plain mean)."""
-    if weight == 1.0 and facing_weight == 1.0:
+    known_mask (B, L, D) gives (a hand goal on one of the joints `hands`) over the window's last
+    quarter, 1 elsewhere; None when weight is 1 (the plain mean)."""
+    if weight == 1.0:
         return None
     B, L, D = known_mask.shape
     tail = max(1, L // 4)
@@ -271,8 +270,4 @@ def hand_goal_weights(known_mask: torch.Tensor, hands, weight: float, facing_wei
     for j in hands:
         given = known_mask[:, -1, 3 * j]                                                          # (B,) bool
         w[:, L - tail:, 3 * j:3 * j + 3] = torch.where(given, weight, 1.0)[:, None, None]
-    if facing_weight != 1.0 and D >= 3 * max(FACING_JOINTS) + 3:
-        given = known_mask[:, -1, 3 * FACING_JOINTS[0]]                                           # (B,) bool
-        for j in FACING_JOINTS:
-            w[:, L - tail:, [3 * j, 3 * j + 2]] = torch.where(given, facing_weight, 1.0)[:, None, None]
     return w

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from motiongen.diffusion.masks import FACING_JOINTS, known_mask
+from motiongen.diffusion.masks import known_mask
 from motiongen.geometry import canonical_frame, invert_rigid, transform_points
 from motiongen.models import Condition
 from motiongen.sampling.episode import LoopSpec, Tail
@@ -50,12 +50,9 @@ def condition_episode(spec: LoopSpec, loaded, query: SceneQuery, tail: Tail | No
     known, give_y = known_values(loaded.stats, loaded.layout, inv, tail, local_t, t.height, L)
     hand = t.hand if t.hand is not None else np.full(S, -1, np.int64)                        # (S,)
     hand_values(known, loaded.stats, inv, hand, t.hand_point)
-    facing = (facing_values(known, loaded.stats, inv, tail, local_t, hand, t.hand_point)
-              if loaded.mask.facing_goals else np.zeros(S, bool))                             # (S,)
     mask = known_mask(S, L, loaded.joint_set.num_joints, transition=pinned, goal_xz=True,
                       goal_y=torch.from_numpy(give_y), hand=torch.from_numpy(hand >= 0),
-                      hand_joint=torch.from_numpy(np.maximum(hand, 0)), goal_joint=PELVIS, channels=D,
-                      facing=torch.from_numpy(facing))                                        # (S, L, D)
+                      hand_joint=torch.from_numpy(np.maximum(hand, 0)), goal_joint=PELVIS, channels=D)   # (S, L, D)
     labels = np.repeat(t.label[:, None], L, 1)                                               # (S, L)
     if pinned:
         labels[:, :pinned] = tail.labels
@@ -106,35 +103,6 @@ def hand_values(known: np.ndarray, stats, inv: np.ndarray, hand: np.ndarray, poi
         v[c] = transform_points(inv[s], point[s][None])[0]
         known[s, -1, c] = stats.normalize(v[None])[0, c]
 
-
-
-def facing_values(known: np.ndarray, stats, inv: np.ndarray, tail: Tail | None, local_t: np.ndarray,
-                  hand: np.ndarray, point: np.ndarray) -> np.ndarray:
-    """Turn each sample given a hand goal towards it: both hips' x, z (`FACING_JOINTS`) at the
-    last frame of known (S, L, D) normalised, placed about the pelvis goal local_t (S, 2) (window
-    frame) as the tail's last frame holds them about its own pelvis, and turned so that the body
-    faces the goal's world point (S, 3) (hand (S,), -1 none). A body that ends a pick-up facing
-    what it reaches for is how the data's people pick things up; the network, told only where
-    its pelvis goes, arrives turned the way it walked. Returns (S,) bool: the samples given one
-    (a hand goal, a tail to take the hips from, the goal not on the pelvis goal)."""
-    S, D = known.shape[0], known.shape[-1]
-    face = hand >= 0 if tail is not None else np.zeros(S, bool)
-    chans = [3 * j + c for j in FACING_JOINTS for c in (0, 2)]
-    for s in np.flatnonzero(face):
-        d = transform_points(inv[s], point[s][None])[0][[0, 2]] - local_t[s]                 # (2,) x, z
-        if np.linalg.norm(d) < 1e-6:
-            face[s] = False
-            continue
-        yaw = np.arctan2(d[0], d[1])                           # forward = (sin yaw, cos yaw) in x, z
-        c, n = np.cos(yaw), np.sin(yaw)
-        last = tail.joints[s, -1]                                                            # (J, 3) world
-        v = np.zeros(D, np.float32)
-        to_body = invert_rigid(canonical_frame(last))            # world -> the tail body's facing frame
-        for j in FACING_JOINTS:
-            left, _, fwd = transform_points(to_body, last[j][None])[0]
-            v[3 * j], v[3 * j + 2] = local_t[s, 0] + left * c + fwd * n, local_t[s, 1] - left * n + fwd * c
-        known[s, -1, chans] = stats.normalize(v[None])[0, chans]
-    return face
 
 def goal_channels(stats, D: int, local_xz: np.ndarray) -> np.ndarray:
     """Window-frame pelvis x, z (S, 2) in normalised units (S, 2): stats.normalize acts per

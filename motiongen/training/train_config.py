@@ -34,9 +34,6 @@ class TrainConfig:
     # hand goal is 3 of the window's L*D entries, and with a plain mean the network learnt to
     # ignore it (docs/results.md).
     hand_goal_weight: float = 1.0
-    # The same for the hips' x, z of a facing goal (`mask.p_facing`): 4 entries, which a plain mean
-    # lets the network ignore as it did the hand goal.
-    facing_goal_weight: float = 1.0
     w_bone_length: float = 0.0
     # Weight of the facing term: how far (m) the prediction's left-to-right hip and shoulder
     # vectors are from the clean window's, per frame (training/body_losses.py). 0 = off.
@@ -68,8 +65,8 @@ class TrainConfig:
         for key in ("warmup_steps", "geometry_start", "geometry_ramp", "val_every", "figure_every", "keep_last", "num_workers", "threads"):
             r(f"train.{key}", getattr(self, key), 0, integer=True)
         r("train.lr", self.lr, 0, lo_open=True)   # no ceiling: lr=1e20 is how a diverging run is reproduced
-        for key in ("weight_decay", "grad_clip", "pelvis_loss_weight", "hand_goal_weight", "facing_goal_weight",
-                    "w_bone_length", "w_planted_feet", "w_facing"):
+        for key in ("weight_decay", "grad_clip", "pelvis_loss_weight", "hand_goal_weight", "w_bone_length",
+                    "w_planted_feet", "w_facing"):
             r(f"train.{key}", getattr(self, key), 0)
         for key in ("min_lr_ratio", "cond_drop_scene", "cond_drop_actions"):
             r(f"train.{key}", getattr(self, key), 0, 1)

@@ -140,8 +140,7 @@ def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
                                                loss_mask=loss_mask(known_mask, loop.predict_goal),
                                                window_terms=loop.body,
                                                entry_weights=hand_goal_weights(known_mask, loop.mask.goal_hands,
-                                                                               run.tc.hand_goal_weight,
-                                                                               run.tc.facing_goal_weight))
+                                                                               run.tc.hand_goal_weight))
     loss = losses["loss"]
     run.opt.zero_grad(set_to_none=True)
     loss.backward()
