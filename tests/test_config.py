@@ -136,6 +136,7 @@ OUT_OF_RANGE = [
     ("sample", ["body_height=[1.7,0.1]"], "body_height[1]: expected a number > 1.7"),
     ("sample", ["loop.max_episodes=0"], "loop.max_episodes: expected an integer >= 1"),
     ("sample", ["loop.tolerance=-1"], "loop.tolerance: expected a number > 0"),
+    ("sample", ["loop.settle=-1"], "loop.settle: expected an integer >= 0"),
     ("sample", ["loop.out_fps=1e9"], "loop.out_fps: expected a number > 0 and <= 1000"),
     ("sample", ["video_fps=0"], "video_fps: expected a number > 0"),
     ("evaluate", ["max_episodes=0"], "max_episodes: expected an integer >= 1 and <= 100000, got 0"),

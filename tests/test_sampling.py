@@ -69,6 +69,33 @@ def test_reaches_goals_in_empty_scene_with_continuous_seams():
     assert len(m.episode_starts) > 5
 
 
+def test_a_walk_to_a_last_goal_ends_at_rest_on_it():
+    """A last goal without an action is reached within the tolerance, still walking; the loop
+    then settles (loop.settle=1): one more episode standing on the goal. The episodes up to the
+    finish are the same as without it, the finish frame too (evaluation cuts there), and the
+    body ends standing on the goal where it would have ended walking (the oracle walks at
+    ~0.4 m/s into its goal)."""
+    goal = np.array([1.0, 4.0])
+    kw = dict(generator=None, sampler=SamplerSettings("ddim", 2), loop=None)
+    runs = {}
+    for settle in (0, 1):
+        kw.update(generator=torch.Generator().manual_seed(0), loop=LoopConfig(tolerance=0.25, settle=settle))
+        runs[settle] = _generate(_loaded(predict_goal=True), [Goal(goal)], **kw)
+    off, on = runs[0], runs[1]
+    assert off.completed and on.completed
+    assert [e.kind for e in on.episodes] == [e.kind for e in off.episodes] + ["idle"]
+    assert on.finish_frame.tolist() == off.finish_frame.tolist()
+    n = len(off.model_joints[0])
+    np.testing.assert_array_equal(on.model_joints[:, :n], off.model_joints)          # the same episodes
+    assert on.joints.shape[1] > off.joints.shape[1] + 20                               # ~1.2 s more at 30 fps
+    end = lambda m: np.linalg.norm(m.joints[0, -1, PELVIS, [0, 2]] - goal)             # noqa: E731
+    speed = lambda m: np.linalg.norm(np.diff(m.joints[0, -6:, PELVIS][:, [0, 2]], axis=0), axis=-1).mean() * m.fps   # noqa: E731
+    assert end(on) < 0.02 and speed(on) < 0.05 < 0.3 < speed(off)                      # m, m/s: at rest, not mid-stride
+    # a last goal with an action ends acting: nothing to settle
+    sit = _generate(_loaded(predict_goal=True), [Goal(goal, "sit", 1.0)], **kw)
+    assert sit.episodes[-1].kind == "act"
+
+
 def test_pinned_transition_frames_equal_previous_frames():
     m = _generate(_loaded(), [Goal([0.5, 3.0])], generator=torch.Generator().manual_seed(1),
                   sampler=SamplerSettings("ddpm", 10, eta=1.0))

@@ -35,7 +35,8 @@ from the reference loop"):
   batched call per episode; a finished sample idles at its last goal until all are done.
 * Interactions: a goal with an action holds the pelvis target there with that action label
   for its duration.
-* Stops at the final goal within tolerance, or at `max_episodes` with a warning saying how
+* Stops at the final goal within tolerance (then `loop.settle` idle episodes, so the body
+  comes to rest there rather than ending mid-stride), or at `max_episodes` with a warning saying how
   far each sample got; a sample that makes no progress for `loop.stall_s` seconds of motion
   stops early (`progress.stall_rule`), idling where it stands, and the loop ends once every
   sample is done or stopped. `Motion.goal_outcome` says what became of each goal.
@@ -115,18 +116,19 @@ def generate(loaded, scene=None, *, route: Route, walkable: WalkableMap | None =
         drop_warmup(state, spec.transition)
         first_kept = len(state.episodes) - 1
 
-    # Goal episodes, until every sample has acted at its last goal or stalled.
+    # Goal episodes, until every sample has acted at its last goal or stalled; then, when every
+    # sample walked to a last goal without an action (arriving within the tolerance, mid-stride),
+    # `loop.settle` more for the bodies to come to rest on it.
     n_ep = 0
     while not progress.finished.all() and n_ep < loop.max_episodes:
-        targets = next_targets(progress, plan, state.pelvis_now())
-        if reach is not None:
-            targets.hand, targets.hand_point = hand_goals(reach, state.tail.joints, targets.label)
         before = state.n_frames
-        run_episode(spec, loaded, query, body_model, state, targets)
+        targets = goal_episode(spec, loaded, query, body_model, state, progress, plan, reach)
         n_ep += 1
         for line in advance(progress, plan, targets, state.frames[-1], before, n_ep):
             if log is not None:
                 log(line)
+    for _ in range(loop.settle if progress.done.all() and not plan.goals[-1].interacts else 0):
+        goal_episode(spec, loaded, query, body_model, state, progress, plan, reach)
     if not progress.finished.all():
         warnings.warn(f"stopped after max_episodes={loop.max_episodes} episodes: "
                       + shortfall(progress, plan, state.pelvis_now()), stacklevel=2)
@@ -142,6 +144,17 @@ def generate(loaded, scene=None, *, route: Route, walkable: WalkableMap | None =
     motion = finish(loop)
     motion.variants = {name: finish(lc) for name, lc in (cleanups or {}).items()}
     return motion
+
+
+def goal_episode(spec: LoopSpec, loaded, query: SceneQuery, body_model, state: EpisodeState, progress: Progress,
+                 plan, reach) -> Targets:
+    """One episode towards each sample's next target (`progress.next_targets`), with its hand
+    goal where the loop gives one; returns the targets."""
+    targets = next_targets(progress, plan, state.pelvis_now())
+    if reach is not None:
+        targets.hand, targets.hand_point = hand_goals(reach, state.tail.joints, targets.label)
+    run_episode(spec, loaded, query, body_model, state, targets)
+    return targets
 
 
 def check_cleanups(loop: LoopConfig, cleanups: Mapping[str, LoopConfig]) -> None:

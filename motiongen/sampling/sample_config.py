@@ -114,6 +114,7 @@ def check_loop(loop: LoopConfig) -> None:
     r("loop.reach_fraction", loop.reach_fraction, 0, 10, lo_open=True)
     r("loop.tolerance", loop.tolerance, 0, 100, lo_open=True)
     r("loop.max_episodes", loop.max_episodes, 1, 100000, integer=True)
+    r("loop.settle", loop.settle, 0, 1000, integer=True)
     require_fps("loop.out_fps", loop.out_fps)
     require_fps("loop.source_fps", loop.source_fps, allow_none=True)
     r("loop.smooth", loop.smooth, 0, 1000, allow_none=True)

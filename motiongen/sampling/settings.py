@@ -74,6 +74,11 @@ class LoopConfig:
     lookahead: bool = True         # target the farthest visible subgoal within reach
     tolerance: float = 0.25        # pelvis distance (m) that counts as arriving
     max_episodes: int = 200
+    # Episodes after every sample has finished at a last goal without an action: a body that
+    # reached it within `tolerance`, still walking, comes to rest there instead of the motion
+    # ending in the middle of a step (a goal with an action already ends acting). Evaluation
+    # cuts each sample at its finish, so these frames are never measured. 0: end on arrival.
+    settle: int = 1
     # Seconds of motion without progress towards its current subgoal (coming STALL_MARGIN = 0.1 m
     # closer, passing a subgoal, acting) after which a sample stops there and its goal fails;
     # null or 0 = never (evaluation). 20 s: a walk covers a detour's subgoals one by one and an
