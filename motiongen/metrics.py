@@ -152,16 +152,21 @@ def walking_knee_angle(joints, fps: float, min_speed: float = 0.5) -> float:
     return float(np.median(knee_angles(w))) if len(w) else float("nan")
 
 
-def knee_angles(joints) -> np.ndarray:
-    """(T,) the two knees' mean angle between thigh and shin (degrees; 180 = straight) of
-    joints (T, J, 3), frame by frame."""
+def leg_knee_angles(joints) -> np.ndarray:
+    """(T, 2) each knee's angle between thigh and shin (degrees; 180 = straight) of joints
+    (T, J, 3), frame by frame, in the order of `LEGS` (left, right)."""
     j = _joints(joints)
     angles = []
     for hip, knee, ankle in LEGS:
         u, v = j[:, hip] - j[:, knee], j[:, ankle] - j[:, knee]
         cos = (u * v).sum(-1) / np.maximum(np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1), 1e-12)
         angles.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-    return np.mean(angles, 0)
+    return np.stack(angles, 1)
+
+
+def knee_angles(joints) -> np.ndarray:
+    """(T,) the two knees' mean angle (`leg_knee_angles`), frame by frame."""
+    return leg_knee_angles(joints).mean(1)
 
 
 def lower_toe_height(joints, floor_y: float = 0.0, foot_joints: Sequence[int] = TOE_JOINTS) -> float:

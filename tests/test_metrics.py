@@ -6,8 +6,8 @@ import pytest
 from motiongen.scene.distance_field import surface_distance
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.metrics import (apd, body_metrics, contact_rate, floor_penetration, foot_skating_ratio,
-                                    goal_distances, goal_success, heading_off_travel, lower_toe_height, mean_jerk, pskl,
-                                    walking_knee_angle,
+                                    goal_distances, goal_success, heading_off_travel, knee_angles, leg_knee_angles,
+                                    lower_toe_height, mean_jerk, pskl, walking_knee_angle,
                                     scene_penetration, seam_jump, trajectory_fail_rate)
 from motiongen.geometry import yaw_matrix
 from motiongen.skeleton import BODY_PARENTS, FOOT_JOINTS, LEFT_HIP, PELVIS, RIGHT_HIP
@@ -70,6 +70,11 @@ def test_walking_knee_angle_is_the_angle_between_thigh_and_shin_while_walking():
     assert walking_knee_angle(j, FPS) == pytest.approx(150.0, abs=1e-6)
     assert np.isnan(walking_knee_angle(legs_bent(walking(0, 0, speed=0.3), 150.0), FPS))
     assert np.isnan(walking_knee_angle(still(), FPS))
+    # each knee on its own: the right leg at 110° beside a left one at 150° (their mean, 130°)
+    j = legs_bent(walking(30, 30), 150.0)
+    j[:, [2, 5, 8]] = legs_bent(walking(30, 30), 110.0)[:, [2, 5, 8]]
+    np.testing.assert_allclose(leg_knee_angles(j), np.tile([150.0, 110.0], (len(j), 1)), atol=1e-6)
+    np.testing.assert_allclose(knee_angles(j), 130.0, atol=1e-6)
 
 
 def test_lower_toe_height_is_the_median_of_the_lower_toe():
