@@ -66,3 +66,26 @@ def test_smoothing_goes_by_the_model_rate(bm):
     jitter = lambda x: np.abs(np.diff(x[:, wrist, 0], 2)).mean()           # noqa: E731
     assert jitter(out(15.0)) < 0.5 * jitter(out(15.0, smooth=0.0))
     np.testing.assert_array_equal(out(10.0), out(10.0, smooth=0.0))
+
+
+def test_swing_clearance_goes_by_the_model_rate(bm, monkeypatch):
+    """The final solve holds a swinging foot at its predicted height with the solve's own weight
+    (300) from 15 fps, with 10 below (a 10 fps model's swings keep their height under its weaker
+    smoothness), and not at all with `loop.swing_clearance=false`."""
+    import motiongen.sampling.cleanup as cleanup
+    from motiongen.body.solve import SOLVE_CONFIG
+
+    seen = []
+    solve = cleanup.solve_bodies
+
+    def recording(*args, cfg=None, **kw):
+        seen.append(cfg.w_clearance)
+        return solve(*args, cfg=cfg, **kw)
+
+    monkeypatch.setattr(cleanup, "solve_bodies", recording)
+    layout = SimpleNamespace(contact_joints=FOOT_JOINTS, num_contacts=4)
+    plan = SimpleNamespace(names=["walk"], goals=[])
+    for fps, kw in ((15.0, {}), (10.0, {}), (10.0, {"swing_clearance": False})):
+        state, _ = _episodes(bm, frames=12)
+        clean_up(state, layout, fps, plan, LoopConfig(solve="joint-space", **kw), None, None)
+    assert seen == [SOLVE_CONFIG.w_clearance, 10.0, 0.0] and SOLVE_CONFIG.w_clearance == 300.0

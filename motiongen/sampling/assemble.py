@@ -57,6 +57,17 @@ def solve_smoothness_for_rate(model_fps: float) -> float:
     return 200.0 if model_fps >= SMOOTHABLE_FPS - 1e-6 else 50.0
 
 
+def clearance_for_rate(model_fps: float) -> float:
+    """The final solve's swing-clearance weight (`loop.swing_clearance` on): how hard an
+    unplanted foot joint is held at or above its predicted (lifted) height. At SMOOTHABLE_FPS or
+    more, the solve's own 300 (`body.solve.SOLVE_CONFIG`): its strong acceleration weight there
+    would flatten each swing into a low, fast foot. Below it, 10: under the weaker weight of a
+    10 fps model the swings keep most of their height by themselves, and a hard hold adds a
+    kick at every lift-off and landing that the data's feet do not have (its spectrum and jerk
+    move away from the data's, docs/results.md "Swing clearance by the model's rate")."""
+    return SOLVE_CONFIG.w_clearance if model_fps >= SMOOTHABLE_FPS - 1e-6 else 10.0
+
+
 def smoothing_for_rate(model_fps: float) -> float:
     """`loop.smooth` = None: the Gaussian sigma (output frames) over the non-foot joints before
     the final solve. At SMOOTHABLE_FPS or more, 2: the network's frame-level jitter lies above

@@ -14,8 +14,8 @@ import torch
 from scipy.ndimage import gaussian_filter1d
 
 from motiongen.body.solve import SOLVE_CONFIG
-from motiongen.sampling.assemble import (output_times, planted_at_output, resample, smoothing_for_rate, solve_bodies,
-                                         solve_weights)
+from motiongen.sampling.assemble import (clearance_for_rate, output_times, planted_at_output, resample,
+                                         smoothing_for_rate, solve_bodies, solve_weights)
 from motiongen.sampling.episode import EpisodeState
 from motiongen.sampling.hand_clearance import PUSH_SMOOTHING, settle_hands
 from motiongen.sampling.interactions import hand_targets, merge_targets, seat_shift
@@ -61,7 +61,7 @@ def clean_up(state: EpisodeState, layout, model_fps: float, plan: GoalPlan, loop
             out = lift_swings(out, planted, layout.contact_joints, swing_rise)
         hands = hand_targets(out, labels, plan.names, loop.hand_actions, objects, scene) or [None] * out.shape[0]
         weights = solve_weights(loop.solve, model_fps, loop.solve_smoothness)
-        clearance = SOLVE_CONFIG.w_clearance if loop.swing_clearance else 0.0
+        clearance = clearance_for_rate(model_fps) if loop.swing_clearance else 0.0
         reach = [merge_targets(h, p) for h, p in zip(hands, seats)]
         rots = torch.cat(state.rots, 1)
         # By default a planted foot is held where the network put it, not where the projection
