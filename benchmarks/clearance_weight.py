@@ -14,16 +14,25 @@ import os
 import sys
 
 import motiongen.sampling.cleanup as cleanup
+from motiongen.commands import evaluate_command
 
-if "MOTIONGEN_CLEARANCE" in os.environ:
-    WEIGHT = float(os.environ["MOTIONGEN_CLEARANCE"])
+def _weight(text: str | None) -> float | None:
+    """The weight in $MOTIONGEN_CLEARANCE, None where it is unset or not a number >= 0."""
+    try:
+        w = float(text) if text is not None else None
+    except ValueError:
+        return None
+    return w if w is not None and 0 <= w < float("inf") else None
+
+
+WEIGHT = _weight(os.environ.get("MOTIONGEN_CLEARANCE"))
+if WEIGHT is not None:
     cleanup.clearance_for_rate = lambda model_fps: WEIGHT
 
 if __name__ == "__main__":
-    if "MOTIONGEN_CLEARANCE" not in os.environ:
-        print("error: set MOTIONGEN_CLEARANCE to the swing-clearance weight", file=sys.stderr)
+    if WEIGHT is None:
+        print(f"error: MOTIONGEN_CLEARANCE: expected the swing-clearance weight, a number >= 0, got "
+              f"{os.environ.get('MOTIONGEN_CLEARANCE')!r}", file=sys.stderr)
         sys.exit(2)
-    from motiongen.commands import evaluate_command
-
     sys.argv = ["evaluate", *sys.argv[1:]]
     evaluate_command.main()
