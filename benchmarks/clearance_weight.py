@@ -16,6 +16,7 @@ import sys
 import motiongen.sampling.cleanup as cleanup
 from motiongen.commands import evaluate_command
 
+
 def _weight(text: str | None) -> float | None:
     """The weight in $MOTIONGEN_CLEARANCE, None where it is unset or not a number >= 0."""
     try:

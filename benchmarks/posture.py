@@ -17,7 +17,7 @@ import numpy as np
 
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.importers.sources import DataConfig, open_dataset
-from motiongen.metrics import LEGS, bone_lengths, knee_angles, leg_knee_angles
+from motiongen.metrics import LEGS, bone_lengths, knee_angles, leg_knee_angles, walking_frames
 from motiongen.skeleton import BODY_PARENTS, HEAD, PELVIS
 
 SPEC = {"motion": (list, []), "split": (str, None), "episodes": (bool, True)}
@@ -27,12 +27,11 @@ STANCE_MPS, SWING_MPS, WALK_MPS = 0.3, 1.0, 0.5
 def phase_knees(joints: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
     """Each knee's angle (degrees) over the walking frames of joints (T, 22, 3) at fps, split by
     its leg's phase: (stance angles, swing angles), both legs pooled."""
-    speed = lambda x: np.linalg.norm(np.gradient(x, axis=0), axis=-1) * fps                # noqa: E731
-    walking = speed(joints[:, PELVIS][:, [0, 2]]) > WALK_MPS                                 # (T,)
+    walking = walking_frames(joints, fps, WALK_MPS)                                          # (T,)
     stance, swing = [], []
     angles = leg_knee_angles(joints)                                                          # (T, 2)
     for leg, (_, _, ankle) in enumerate(LEGS):
-        a = speed(joints[:, ankle])
+        a = np.linalg.norm(np.gradient(joints[:, ankle], axis=0), axis=-1) * fps             # (T,) m/s
         stance.append(angles[walking & (a < STANCE_MPS), leg]), swing.append(angles[walking & (a > SWING_MPS), leg])
     return np.concatenate(stance), np.concatenate(swing)
 

@@ -109,6 +109,21 @@ def grounded_slide(joints, fps: float, height_thresh: float = 0.05, foot_joints:
     return float(np.median(speed[on])) if on.any() else float("nan")
 
 
+def pelvis_velocity(joints, fps: float) -> np.ndarray:
+    """(T-2, 2) the pelvis's horizontal velocity (x, z; m/s) at frames 1..T-2 of joints (T, J, 3),
+    by central differences (empty below 3 frames)."""
+    j = _joints(joints)
+    return (j[2:, PELVIS] - j[:-2, PELVIS])[:, [0, 2]] * fps / 2 if len(j) >= 3 else np.zeros((0, 2))
+
+
+def walking_frames(joints, fps: float, min_speed: float = 0.5) -> np.ndarray:
+    """(T,) bool: the frames of joints (T, J, 3) where the pelvis moves faster than min_speed m/s
+    (`pelvis_velocity`; never the first or last frame)."""
+    moving = np.zeros(len(joints), bool)
+    moving[1:-1] = np.linalg.norm(pelvis_velocity(joints, fps), axis=-1) > min_speed
+    return moving
+
+
 def heading_off_travel_angles(joints, fps: float, min_speed: float = 0.5) -> np.ndarray:
     """Angles (degrees, in [0, 180]) between where a body faces (`geometry.facing_yaw`, from its
     hips) and where its pelvis moves (horizontal velocity by central differences), on the frames
@@ -118,7 +133,7 @@ def heading_off_travel_angles(joints, fps: float, min_speed: float = 0.5) -> np.
     j = _joints(joints)
     if len(j) < 3:
         return np.zeros(0)
-    v = (j[2:, PELVIS] - j[:-2, PELVIS])[:, [0, 2]] * fps / 2                                # (T-2, 2)
+    v = pelvis_velocity(j, fps)                                                              # (T-2, 2)
     speed = np.linalg.norm(v, axis=-1)
     yaw = facing_yaw(j[1:-1])                                                                # (T-2,)
     forward = np.stack([np.sin(yaw), np.cos(yaw)], -1)                                      # (T-2, 2) x, z
@@ -145,10 +160,7 @@ def walking_knee_angle(joints, fps: float, min_speed: float = 0.5) -> float:
     network's pelvis is walks crouched on legs of its own length, which no bone or foot figure
     sees. NaN when the body never moves that fast."""
     j = _joints(joints)
-    if len(j) < 3:
-        return float("nan")
-    speed = np.linalg.norm((j[2:, PELVIS] - j[:-2, PELVIS])[:, [0, 2]], axis=-1) * fps / 2    # (T-2,)
-    w = j[1:-1][speed > min_speed]                                                          # (N, J, 3)
+    w = j[walking_frames(j, fps, min_speed)]                                                 # (N, J, 3)
     return float(np.median(knee_angles(w))) if len(w) else float("nan")
 
 
@@ -444,6 +456,7 @@ def pskl(a, b, fps: float, length: int | None = None, eps: float = 1e-12) -> tup
 
 __all__ = ["TOE_JOINTS", "bone_lengths", "BoneConsistency", "bone_consistency", "grounded_slide",
            "heading_off_travel_angles", "lower_toe_height", "heading_off_travel", "walking_knee_angle", "knee_angles",
+           "leg_knee_angles", "pelvis_velocity", "walking_frames",
            "body_metrics",
            "finite_mean", "finite_median", "foot_skating_frames", "foot_skating_ratio", "goal_distances", "goal_success",
            "trajectory_fail_rate", "scene_penetration", "floor_penetration",

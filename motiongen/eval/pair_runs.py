@@ -18,7 +18,7 @@ from motiongen.eval.motion_scores import MeshInput, goal_metrics, motion_metrics
 from motiongen.eval.pairs import Pair, ProtocolConfig, pair_seed
 from motiongen.eval.scene_context import SceneContext
 from motiongen.sampling import LoopConfig, generate
-from motiongen.sampling.assemble import smoothing_for_rate
+from motiongen.sampling.assemble import smoothing_sigma
 from motiongen.sampling.settings import CLEANUP_STAGES, IN_LOOP_STAGES, Motion
 
 
@@ -106,7 +106,7 @@ def stage_can_act(stage: str, loaded, pair: Pair, loop: LoopConfig) -> bool:
     if stage == "seat_height":
         return bool(actions & set(loop.seat_actions))
     if stage == "smoothing":
-        return (smoothing_for_rate(loaded.model_fps) if loop.smooth is None else float(loop.smooth)) > 0
+        return smoothing_sigma(loop.smooth, loaded.model_fps) > 0
     return True
 
 

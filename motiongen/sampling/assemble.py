@@ -68,6 +68,12 @@ def clearance_for_rate(model_fps: float) -> float:
     return SOLVE_CONFIG.w_clearance if model_fps >= SMOOTHABLE_FPS - 1e-6 else 10.0
 
 
+def smoothing_sigma(smooth: float | None, model_fps: float) -> float:
+    """The Gaussian sigma (output frames) that `loop.smooth` asks for: `smoothing_for_rate` when
+    unset, else its own value (0: off)."""
+    return smoothing_for_rate(model_fps) if smooth is None else float(smooth)
+
+
 def smoothing_for_rate(model_fps: float) -> float:
     """`loop.smooth` = None: the Gaussian sigma (output frames) over the non-foot joints before
     the final solve. At SMOOTHABLE_FPS or more, 2: the network's frame-level jitter lies above

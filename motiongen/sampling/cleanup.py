@@ -15,7 +15,7 @@ from scipy.ndimage import gaussian_filter1d
 
 from motiongen.body.solve import SOLVE_CONFIG
 from motiongen.sampling.assemble import (clearance_for_rate, output_times, planted_at_output, resample,
-                                         smoothing_for_rate, solve_bodies, solve_weights)
+                                         smoothing_sigma, solve_bodies, solve_weights)
 from motiongen.sampling.episode import EpisodeState
 from motiongen.sampling.hand_clearance import PUSH_SMOOTHING, settle_hands
 from motiongen.sampling.interactions import hand_targets, merge_targets, seat_shift
@@ -48,7 +48,7 @@ def clean_up(state: EpisodeState, layout, model_fps: float, plan: GoalPlan, loop
     raw_out = resample(np.concatenate(state.raws, 1), model_fps, loop.out_fps)
     planted = planted_at_output(np.concatenate(state.stances, 1), out, layout.contact_joints, model_fps,
                                 loop.out_fps) if layout.num_contacts else None
-    sigma = smoothing_for_rate(model_fps) if loop.smooth is None else float(loop.smooth)
+    sigma = smoothing_sigma(loop.smooth, model_fps)
     if sigma > 0:
         out = smooth_non_feet(out, sigma, layout.contact_joints)
     labels = model_labels[:, near]                                                          # (S, T)
