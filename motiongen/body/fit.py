@@ -44,6 +44,7 @@ from motiongen.body.analytic import analytic_init, smooth_rotations
 from motiongen.body.foot_velocity import check_mask, foot_velocity_loss, foot_velocity_mask
 from motiongen.body.mlp import JointsToBodyMLP
 from motiongen.body.model import BodyModel, BodyParams, load_body_model
+from motiongen.body.posing import FixedBodyPose
 from motiongen.body.rotations import matrix_to_axis_angle, matrix_to_rot6d, rot6d_to_matrix
 from motiongen.errors import ConfigError
 from motiongen.paths import cache_dir
@@ -176,9 +177,15 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
         tw_sum = tw.sum().clamp(min=1e-9)
         target = torch.where(tw[..., None] > 0, target, torch.zeros_like(target))   # no NaN reaches a gradient
 
+    # A fixed body has a hand-written backward pass (body.posing): the same values, a third of the time.
+    pose = None if betas.requires_grad else FixedBodyPose(bm.rest_joints(betas), bm.parents)
+
     def loss_fn():
-        R = rot6d_to_matrix(rot6d)                                             # (T, 22, 3, 3)
-        J = bm.joints_from_rotmats(R, transl, betas)                           # (T, 22, 3)
+        if pose is not None:
+            J, R = pose(rot6d, transl)                                         # (T, 22, 3), (T, 22, 3, 3)
+        else:
+            R = rot6d_to_matrix(rot6d)
+            J = bm.joints_from_rotmats(R, transl, betas)
         d2 = (J - target).square().sum(-1)                                     # (T, 22)
         loss = cfg.w_joints * (d2.mean() if target_weights is None else (tw * d2).sum() / tw_sum)
         if T >= 3:
