@@ -88,7 +88,8 @@ def _random_loaded(preset: str, stride: int, length: int):
                                  predict_goal=predicts_goal(mask, diffusion.prediction), fps=30.0,
                                  model_fps=30.0 / window.stride,
                                  action_names=[f"a{i}" for i in range(10)], window=window,
-                                 mask=mask, device=torch.device("cpu"))
+                                 mask=mask, device=torch.device("cpu"),
+                                 swing_rise=None)                 # the embedded dataset's swing table
 
 
 def _samplers(spec: str) -> list[tuple[str, int]]:
