@@ -181,13 +181,23 @@ def knee_angles(joints) -> np.ndarray:
     return leg_knee_angles(joints).mean(1)
 
 
+# The pelvis at least this far above the lower toe: the body is on its feet (standing ~0.9 m,
+# seated ~0.45 m; lying on a bed ~0).
+UPRIGHT_M = 0.3
+
+
 def lower_toe_height(joints, floor_y: float = 0.0, foot_joints: Sequence[int] = TOE_JOINTS) -> float:
-    """Median over the frames of joints (T, J, 3) of the lower toe joint's height above the
-    floor (m): how high a body carries its feet. The data walks with it about 2 cm up (the toe
-    joint sits above the sole); a body lifted over the skating figure's 5 cm line cannot skate
-    by that figure, so this one sits beside it. NaN for no frames."""
+    """Median over the frames of joints (T, J, 3) where the body is on its feet (the pelvis at
+    least `UPRIGHT_M` above the lower toe) of the lower toe joint's height above the floor (m):
+    how high a body carries its feet. The data walks with it about 2 cm up (the toe joint sits
+    above the sole); a body lifted over the skating figure's 5 cm line cannot skate by that
+    figure, so this one sits beside it. A body lying on a bed carries its toes at the bed's
+    height, which says nothing of floating feet: those frames are left out. NaN for no frames
+    on its feet."""
     j = _joints(joints)
-    return float(np.median(j[:, list(foot_joints), 1].min(1) - floor_y)) if len(j) else float("nan")
+    toe = j[:, list(foot_joints), 1].min(1) if len(j) else np.zeros(0)                      # (T,)
+    on_feet = j[:, PELVIS, 1] - toe >= UPRIGHT_M if len(j) else np.zeros(0, bool)
+    return float(np.median(toe[on_feet] - floor_y)) if on_feet.any() else float("nan")
 
 
 def body_metrics(joints, fps: float, parents: Sequence[int]) -> dict:

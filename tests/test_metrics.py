@@ -93,6 +93,20 @@ def test_lower_toe_height_is_the_median_of_the_lower_toe():
     assert body_metrics(j, FPS, BODY_PARENTS)["toe_height_m"] == pytest.approx(0.02)
 
 
+def test_lower_toe_height_leaves_out_a_body_lying_down():
+    """30 of 40 frames lying on a 0.5 m bed (pelvis and toes at the bed's height): the figure is
+    the 10 standing frames' 0.02 m, not the bed's; seated (pelvis 0.45 m over feet on the floor)
+    counts as on its feet; lying throughout gives NaN."""
+    j = still(40)
+    j[:, TOES[0], 1], j[:, TOES[1], 1] = 0.02, 0.30
+    j[10:, :, 1] = 0.5 + np.linspace(0.0, 0.2, 22)[None]                             # lying: every joint within 0.2 m of the bed
+    assert lower_toe_height(j) == pytest.approx(0.02)
+    seated = still(20, y=0.47)
+    seated[:, TOES, 1] = 0.02
+    assert lower_toe_height(seated) == pytest.approx(0.02)
+    assert np.isnan(lower_toe_height(j[10:]))
+
+
 def test_heading_off_travel_is_the_angle_between_facing_and_going():
     # Walking facing where it goes: 0; sideways (crab): 90; at 30 degrees: 30, whichever way
     # the path runs; backwards: 180; standing or too slow: NaN.
