@@ -5,7 +5,7 @@ every frame of a motion.
 The same map as `rot6d_to_matrix` followed by `BodyModel.joints_from_rotmats` (Gram-Schmidt,
 then forward kinematics over the 22 body joints), to float rounding. Autograd records one small
 (T, 3, 3) operation per joint and step there, and on a 2-core CPU its per-operation cost, not
-the arithmetic, is most of the solve (docs/results.md, "The body work, timed alone"). Here every
+the arithmetic, was most of the solve (docs/results.md, "The final solve's posing pass"). Here every
 quantity is laid out with the frames last, (..., T), so each step of the tree is a few
 elementwise operations over whole frame vectors, and the backward pass walks the tree once in
 reverse without a recorded graph.
