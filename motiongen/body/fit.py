@@ -177,7 +177,8 @@ def refine(bm: BodyModel, target: torch.Tensor, rot_init: torch.Tensor, betas_in
         tw_sum = tw.sum().clamp(min=1e-9)
         target = torch.where(tw[..., None] > 0, target, torch.zeros_like(target))   # no NaN reaches a gradient
 
-    # A fixed body has a hand-written backward pass (body.posing): the same values, a third of the time.
+    # A fixed body is posed with a hand-written backward pass (body.posing): the same values without
+    # autograd's per-operation cost, which on these small tensors was most of each L-BFGS step.
     pose = None if betas.requires_grad else FixedBodyPose(bm.rest_joints(betas), bm.parents)
 
     def loss_fn():
