@@ -2,7 +2,7 @@
 
     python benchmarks/sample.py [ckpt=PATH] [threads=2] [preset=paper] [episodes=6] [project=true]
                                 [stride=3] [length=16] [samplers=ddpm-100,ddim-50,ddim-25,ddim-10] [batches=1,8]
-                                [precisions=fp32,bf16] [solves=refined] [memos=on]
+                                [precisions=fp32,bf16] [solves=refined] [memos=on] [workers=0]
 
 Speed: the `paper` preset with random-init weights (speed does not depend on training) on the
 CPU, one row per sampler x batch x precision x final-solve method (`loop.solve`), each run in a
@@ -14,7 +14,9 @@ real-time factor to the first row's, the share of the time spent putting the mot
 body (the per-episode projection and the final solve) and the child's peak resident memory.
 `memos=off,on` adds rows with the action encoder run on every window instead of once per
 distinct label window (`Denoiser.memoise_actions`).
-`project=false` measures the network alone. A distilled student with n steps costs exactly
+`workers=N` sets `loop.solve_workers` (0, the default: a batch of 8 or more samples is solved
+in one forked process per core; 1: one sample after another here). `project=false` measures
+the network alone. A distilled student with n steps costs exactly
 what `ddim-n` costs here (the same network, guidance folded in, n evaluations per window), so
 the issue-27 figure is
 
@@ -65,7 +67,7 @@ SETTINGS = [("ddpm", 100), ("ddim", 50), ("ddim", 25), ("ddim", 10)]
 def _args(argv):
     out = {"ckpt": None, "threads": "2", "preset": "paper", "episodes": "6", "project": "true",
            "stride": "3", "length": "16", "samplers": ",".join(f"{s}-{n}" for s, n in SETTINGS), "batches": "1,8",
-           "precisions": "fp32,bf16", "solves": "refined", "memos": "on"}
+           "precisions": "fp32,bf16", "solves": "refined", "memos": "on", "workers": "0"}
     for a in argv:
         k, _, v = a.partition("=")
         out[k] = v
@@ -119,7 +121,8 @@ def _speed_row(a: dict, sampler: str, steps: int, batch: int, prec: str, solve: 
     body_s = _time_body()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        loop = LoopConfig(warmup=1, max_episodes=int(a["episodes"]) - 1, project=project, solve=solve)
+        loop = LoopConfig(warmup=1, max_episodes=int(a["episodes"]) - 1, project=project, solve=solve,
+                          solve_workers=int(a["workers"]))
         generate(loaded, route=walk, sampler=SamplerSettings(sampler, steps), body_model=bm, loop=loop,
                  generator=torch.Generator().manual_seed(1))
         body_s[0] = 0.0
@@ -211,7 +214,8 @@ def main(argv):
         sys.exit(f"memos: expected on, off or both, got {a['memos']!r}")
     print(f"speed: preset={a['preset']}, {30.0 / int(a['stride']):g} fps windows of {a['length']} frames, "
           f"{a['threads']} threads, {a['episodes']} episodes per run, "
-          f"body projection + solve {'on' if a['project'] == 'true' else 'off'}, one child process per row")
+          f"body projection + solve {'on' if a['project'] == 'true' else 'off'} (solve workers {a['workers']}), "
+          f"one child process per row")
     torch.set_num_threads(int(a["threads"]))
     loaded = _random_loaded(a["preset"], int(a["stride"]), int(a["length"]))
     print(f"precision=auto (the default) uses {resolve_precision(loaded.model, 'auto')} for this model")

@@ -1,5 +1,7 @@
 """One body per motion: projection keeps bone lengths whatever the input, foot locking plants feet."""
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -7,7 +9,7 @@ import torch
 from motiongen.body.random_motion import sample_motion
 from motiongen.body.solve import MotionBody
 from motiongen.metrics import bone_consistency, grounded_slide
-from motiongen.sampling.assemble import solve_bodies
+from motiongen.sampling.assemble import PARALLEL_MIN_SAMPLES, parallel_solves, solve_bodies
 from motiongen.skeleton import BODY, BODY_PARENTS, FOOT_JOINTS, JOINT_SETS
 
 
@@ -193,3 +195,25 @@ def test_projection_keeps_ankles_and_wrists_where_predicted(bm):
     for j in (7, 8, 20, 21):                                              # ankles, wrists
         assert np.linalg.norm(J[0, :, j] - X[:, j], axis=-1).max() < 1e-3
     assert bone_consistency(J[0], BODY_PARENTS).max_deviation < 1e-5
+
+
+def test_a_batch_solved_in_forked_workers_is_the_batch_solved_here(bm):
+    """Eight samples (different bodies and motions, feet planted in turn) through the refined
+    final solve in two forked processes and here, one after another: every result bitwise the
+    same; below assemble.PARALLEL_MIN_SAMPLES every job runs in this process, from it in
+    the children."""
+    S, T = PARALLEL_MIN_SAMPLES, 24
+    X, betas = zip(*[_posed(bm, T, seed=10 + s, gait=True) for s in range(S)])
+    X, betas = np.stack(X), torch.stack(list(betas))                       # (S, T, 22, 3), (S, nβ)
+    body = MotionBody(bm, BODY, betas)
+    _, R, _ = body.project(X)
+    planted = np.zeros((S, T, 4), bool)
+    planted[:, :12, :2] = planted[:, 12:, 2:] = True
+    here, forked = (solve_bodies(body, X, R, planted, FOOT_JOINTS, 30.0, 30.0, method="refined", workers=w)
+                    for w in (1, 2))
+    for a, b in zip(here, forked):
+        assert np.array_equal(a.joints, b.joints) and np.array_equal(a.rotmats, b.rotmats)
+    assert not np.array_equal(here[0].joints, here[1].joints)              # eight different motions
+    pid = os.getpid()
+    assert parallel_solves(lambda s: os.getpid(), list(range(PARALLEL_MIN_SAMPLES - 1)), 2) == [pid] * (S - 1)
+    assert set(parallel_solves(lambda s: os.getpid(), list(range(S)), 2)) - {pid}

@@ -74,7 +74,7 @@ def clean_up(state: EpisodeState, layout, model_fps: float, plan: GoalPlan, loop
                                 model_fps, loop.out_fps, targets, samples=samples, method=loop.solve,
                                 cfg=dataclasses.replace(SOLVE_CONFIG, w_clearance=clearance,
                                                         lock_height=loop.foot_height != "free", **weights),
-                                planted_heights=heights)
+                                planted_heights=heights, workers=loop.solve_workers)
 
         bodies = solve(None, reach)
         bodies = settle_hands(bodies, reach, objects, state.body.bm,

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from motiongen.checks import require_choice
+from motiongen.checks import require_choice, require_range
 from motiongen.errors import ConfigError
 from motiongen.rates import DATA_FPS, DEFAULT_STEPS
 from motiongen.sampling.goals import Route
@@ -114,6 +114,10 @@ class LoopConfig:
     # analytically; body/joint_solve.py): ~20x faster, but further from the data's motion
     # spectrum (PSKL) in the dynamic setting (docs/sampling.md, docs/results.md).
     solve: str = "refined"
+    # Processes solving a batch's samples side by side in the final solve, from
+    # assemble.PARALLEL_MIN_SAMPLES samples on (fewer stay here): 0 = one per CPU core, 1 = none.
+    # Each sample's result is the same either way.
+    solve_workers: int = 0
     # Actions done with a hand on the nearest placed object: the final solve puts the nearer
     # hand on it over the frames so labelled. () leaves hands where the network put them.
     hand_actions: tuple[str, ...] = ("pick up",)
@@ -137,6 +141,7 @@ class LoopConfig:
 
     def __post_init__(self):
         require_choice("loop.foot_height", self.foot_height, FOOT_HEIGHTS)
+        require_range("loop.solve_workers", self.solve_workers, 0, 1024, integer=True)
         if self.stall_s is not None and not 0 <= self.stall_s < float("inf"):
             raise ConfigError(f"loop.stall_s: expected seconds >= 0 (0 or null: off), got {self.stall_s}")
 
@@ -161,7 +166,7 @@ CLEANUP_STAGES: dict[str, dict] = {
 IN_LOOP_STAGES = ("projection", "body_scale", "seam_blend", "hand_goal")
 # The LoopConfig fields only the clean-up after the last episode reads.
 POST_LOOP_FIELDS = frozenset({"foot_lock", "foot_height", "swing_clearance", "swing_lift", "smooth", "hand_actions", "seat_shift",
-                              "solve_smoothness", "solve"})
+                              "solve_smoothness", "solve", "solve_workers"})
 
 
 @dataclass
