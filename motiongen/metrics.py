@@ -195,8 +195,8 @@ def lower_toe_height(joints, floor_y: float = 0.0, foot_joints: Sequence[int] = 
     height, which says nothing of floating feet: those frames are left out. NaN for no frames
     on its feet."""
     j = _joints(joints)
-    toe = j[:, list(foot_joints), 1].min(1) if len(j) else np.zeros(0)                      # (T,)
-    on_feet = j[:, PELVIS, 1] - toe >= UPRIGHT_M if len(j) else np.zeros(0, bool)
+    toe = j[:, list(foot_joints), 1].min(1)                                                  # (T,)
+    on_feet = j[:, PELVIS, 1] - toe >= UPRIGHT_M
     return float(np.median(toe[on_feet] - floor_y)) if on_feet.any() else float("nan")
 
 

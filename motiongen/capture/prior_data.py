@@ -16,21 +16,19 @@ and `VERSION`, written atomically.
 from __future__ import annotations
 
 import hashlib
-import multiprocessing as mp
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from motiongen.body.fit import default_mlp, fit_joints
 from motiongen.body.model import BodyModel, BodyParams, load_body_model
 from motiongen.capture.markers import MARKER_NAMES, MIRROR, marker_vertices, params_markers
 from motiongen.data.format import MotionDataset
 from motiongen.errors import ConfigError, DataError
+from motiongen.forked import forked_map
 from motiongen.importers.sources import DataConfig, open_dataset
 from motiongen.paths import cache_dir
 
@@ -143,7 +141,9 @@ def split_markers(ds: MotionDataset, split: str | None, bm: BodyModel, fit_mlp: 
     if ds.smplx is None and mlp == "auto":
         mlp = default_mlp(bm)        # trained (once, cached) here, not in each worker
     t0, done, parts = time.time(), 0, []
-    for i, (s, m) in enumerate(zip(seqs, _map_sequences(ds, seqs, bm, mlp, workers)), 1):
+    # Forked workers inherit the dataset and the body model; only sequence indices cross over.
+    markers = forked_map(lambda k: _sequence_markers(ds, seqs[k], bm, mlp), range(len(seqs)), workers)
+    for i, (s, m) in enumerate(zip(seqs, markers), 1):
         parts.append(m)
         done += s.num_frames
         if verbose and (i % max(1, progress_every) == 0 or i == len(seqs)):
@@ -153,33 +153,6 @@ def split_markers(ds: MotionDataset, split: str | None, bm: BodyModel, fit_mlp: 
     if cache:
         _save_atomic(path, out)
     return out
-
-
-_JOB: dict = {}
-
-
-def _one_thread() -> None:
-    torch.set_num_threads(1)
-
-
-def _job_markers(i: int) -> np.ndarray:
-    return _sequence_markers(_JOB["ds"], _JOB["seqs"][i], _JOB["bm"], _JOB["mlp"])
-
-
-def _map_sequences(ds: MotionDataset, seqs, bm: BodyModel, mlp, workers: int):
-    """The markers of each of `seqs`, in order: here, or in `workers` forked processes (which
-    inherit the dataset, the body model and the initialiser)."""
-    if workers <= 1 or len(seqs) < 2:
-        for s in seqs:
-            yield _sequence_markers(ds, s, bm, mlp)
-        return
-    _JOB.update(ds=ds, seqs=seqs, bm=bm, mlp=mlp)
-    try:
-        with ProcessPoolExecutor(min(workers, len(seqs)), mp_context=mp.get_context("fork"),
-                                 initializer=_one_thread) as pool:
-            yield from pool.map(_job_markers, range(len(seqs)))
-    finally:
-        _JOB.clear()
 
 
 def _save_atomic(path: Path, m: MarkerSplit) -> None:

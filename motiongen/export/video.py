@@ -25,16 +25,15 @@ from __future__ import annotations
 import math
 import multiprocessing as mp
 import os
-import sys
 from pathlib import Path
 from typing import Sequence
 
 import imageio.v2 as imageio
 import numpy as np
-import torch
 
 from motiongen.export import render_body as rb
 from motiongen.export.video_frame import FrameDrawer
+from motiongen.forked import FORK_OK, one_thread
 from motiongen.skeleton import BODY_PARENTS
 
 # Frames go to the workers in blocks of this many (BodyMeshes poses its meshes in chunks of
@@ -132,10 +131,6 @@ def _contact_anchors(joints: np.ndarray, planted: np.ndarray | None, contact_joi
     return rb.contact_anchors(joints, planted, contact_joints)
 
 
-def _one_thread() -> None:
-    torch.set_num_threads(1)       # the body meshes are posed with torch; one thread per worker
-
-
 def _draw_block(ts) -> list[np.ndarray]:
     return [_DRAW(int(t)) for t in ts]
 
@@ -144,18 +139,16 @@ def _frame_stream(draw, frames_idx: np.ndarray, workers: int | None):
     """draw(t) for every t of frames_idx, in order. Matplotlib draws one frame on one core, so
     on Linux frames are drawn by forked worker processes (each inherits the figure)."""
     global _DRAW
-    # fork only on Linux: macOS offers it, but system frameworks may crash in a forked child.
-    linux = sys.platform.startswith("linux")
     if workers is None:
-        workers = min(4, len(os.sched_getaffinity(0))) if linux else 1
+        workers = min(4, len(os.sched_getaffinity(0))) if FORK_OK else 1
     blocks = [frames_idx[i:i + FRAME_BLOCK] for i in range(0, len(frames_idx), FRAME_BLOCK)]
-    if workers < 2 or len(blocks) < 2 or not linux:
+    if workers < 2 or len(blocks) < 2 or not FORK_OK:
         for t in frames_idx:
             yield draw(int(t))
         return
     _DRAW = draw
     try:
-        with mp.get_context("fork").Pool(min(workers, len(blocks)), initializer=_one_thread) as pool:
+        with mp.get_context("fork").Pool(min(workers, len(blocks)), initializer=one_thread) as pool:   # meshes posed with torch
             for frames in pool.imap(_draw_block, blocks):
                 yield from frames
     finally:

@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import functools
 import math
-import multiprocessing as mp
 import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 
 import numpy as np
@@ -18,6 +16,7 @@ from motiongen.body.analytic import analytic_init
 from motiongen.body.rotations import matrix_to_quaternion, quaternion_to_matrix
 from motiongen.body.solve import SOLVE_CONFIG
 from motiongen.checks import require_choice
+from motiongen.forked import forked_map
 from motiongen.skeleton import NUM_BODY_JOINTS
 from motiongen.spans import clean_plants
 
@@ -161,19 +160,19 @@ def solve_bodies(body, joints: np.ndarray, rot_model: torch.Tensor, planted: np.
     require_choice("loop.solve", method, SOLVE_METHODS)
     cfg = cfg if cfg is not None else SOLVE_CONFIG
     todo = list(range(joints.shape[0]) if samples is None else samples)
-    one = functools.partial(_solve_sample, body, joints, rot_model, planted, contact_joints, model_fps, out_fps,
-                            reach, cfg, method, planted_heights)
+    one = functools.partial(_solve_sample, body, joints, rot_model, planted, contact_joints, model_fps,
+                            output_times(rot_model.shape[1], model_fps, out_fps), reach, cfg, method, planted_heights)
     return parallel_solves(one, todo, workers)
 
 
-def _solve_sample(body, joints, rot_model, planted, contact_joints, model_fps, out_fps, reach, cfg, method,
+def _solve_sample(body, joints, rot_model, planted, contact_joints, model_fps, times, reach, cfg, method,
                   planted_heights, s: int):
-    """Sample s's final solve (`solve_bodies`' arguments)."""
+    """Sample s's final solve (`solve_bodies`' arguments; times: `output_times` of its output)."""
+    t_out, near = times
     p = None if planted is None else planted[s]
     r = None if reach is None else reach[s]
     h = None if planted_heights is None else planted_heights[s]
     if method != "lbfgs":
-        t_out, _ = output_times(rot_model.shape[1], model_fps, out_fps)
         hint = interpolate_rotations(rot_model[s], model_fps, t_out)                       # (T, 22, 3, 3)
         exact = cfg if method == "joint-space" else replace(cfg, **solve_weights("joint-space", model_fps, None))
         start = body.solve_joint_space(s, joints[s], hint, p, contact_joints, cfg=exact, reach=r, planted_heights=h)
@@ -181,7 +180,6 @@ def _solve_sample(body, joints, rot_model, planted, contact_joints, model_fps, o
             return start
         R0, cfg_s = torch.as_tensor(start.rotmats, dtype=body.rest.dtype), replace(cfg, max_steps=REFINED_STEPS)
     else:
-        _, near = output_times(rot_model.shape[1], model_fps, out_fps)
         X = torch.as_tensor(joints[s, :, :NUM_BODY_JOINTS], dtype=body.rest.dtype)        # (T, 22, 3)
         R0, cfg_s = analytic_init(X, body.rest[s], rot_model[s, near].to(X.dtype)), cfg   # (T, 22, 3, 3)
     return body.solve(s, joints[s], R0, p, contact_joints, cfg=cfg_s, reach=r, planted_heights=h)
@@ -190,34 +188,17 @@ def _solve_sample(body, joints, rot_model, planted, contact_joints, model_fps, o
 # Samples below which the final solves stay in this process: a fork and the results' way back
 # cost more than a few solves save.
 PARALLEL_MIN_SAMPLES = 8
-_JOB: dict = {}
 
 
 def parallel_solves(one, todo: list, workers: int) -> list:
-    """[one(s) for s in todo], in `workers` forked processes when there are at least
-    PARALLEL_MIN_SAMPLES (0: one per CPU core). Each solve is single-threaded (the body's
-    tensors are small: body/_threads.py) and its Python holds the interpreter lock most of the
-    time, so threads gain nothing on a short motion (docs/results.md, "The final solve's
+    """[one(s) for s in todo], in `workers` forked processes (`forked.forked_map`; 0: one per CPU
+    core) when there are at least PARALLEL_MIN_SAMPLES. Each solve is single-threaded (the
+    body's tensors are small: body/_threads.py) and its Python holds the interpreter lock most
+    of the time, so threads gain nothing on a short motion (docs/results.md, "The final solve's
     posing pass"); forked children inherit the inputs and give each sample the bitwise result
     it has here."""
     workers = workers if workers > 0 else (os.cpu_count() or 1)
-    if workers <= 1 or len(todo) < PARALLEL_MIN_SAMPLES:
-        return [one(s) for s in todo]
-    _JOB["one"] = one
-    try:
-        with ProcessPoolExecutor(min(workers, len(todo)), mp_context=mp.get_context("fork"),
-                                 initializer=_one_thread) as pool:
-            return list(pool.map(_solve_job, todo))
-    finally:
-        _JOB.clear()
-
-
-def _one_thread() -> None:
-    torch.set_num_threads(1)
-
-
-def _solve_job(s: int):
-    return _JOB["one"](s)
+    return list(forked_map(one, todo, workers if len(todo) >= PARALLEL_MIN_SAMPLES else 1))
 
 
 SOLVE_METHODS = ("lbfgs", "joint-space", "refined")
