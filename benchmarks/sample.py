@@ -15,7 +15,7 @@ body (the per-episode projection and the final solve) and the child's peak resid
 `memos=off,on` adds rows with the action encoder run on every window instead of once per
 distinct label window (`Denoiser.memoise_actions`).
 `workers=N` sets `loop.solve_workers` (0, the default: a batch of 8 or more samples is solved
-in one forked process per core; 1: one sample after another here). `project=false` measures
+in one forked process per torch thread, `threads`; 1: one sample after another here). `project=false` measures
 the network alone. A distilled student with n steps costs exactly
 what `ddim-n` costs here (the same network, guidance folded in, n evaluations per window), so
 the issue-27 figure is

@@ -217,3 +217,16 @@ def test_a_batch_solved_in_forked_workers_is_the_batch_solved_here(bm):
     pid = os.getpid()
     assert parallel_solves(lambda s: os.getpid(), list(range(PARALLEL_MIN_SAMPLES - 1)), 2) == [pid] * (S - 1)
     assert set(parallel_solves(lambda s: os.getpid(), list(range(S)), 2)) - {pid}
+
+
+def test_default_solve_workers_follow_torch_threads():
+    """loop.solve_workers=0 forks as many workers as torch has threads: none under one thread
+    (an `evaluate jobs=N` worker on its share of the cores), two under two."""
+    pid, items, old = os.getpid(), list(range(PARALLEL_MIN_SAMPLES)), torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        assert parallel_solves(lambda s: os.getpid(), items, 0) == [pid] * len(items)
+        torch.set_num_threads(2)
+        assert set(parallel_solves(lambda s: os.getpid(), items, 0)) - {pid}
+    finally:
+        torch.set_num_threads(old)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 from dataclasses import replace
 
 import numpy as np
@@ -191,13 +190,14 @@ PARALLEL_MIN_SAMPLES = 8
 
 
 def parallel_solves(one, todo: list, workers: int) -> list:
-    """[one(s) for s in todo], in `workers` forked processes (`forked.forked_map`; 0: one per CPU
-    core) when there are at least PARALLEL_MIN_SAMPLES. Each solve is single-threaded (the
+    """[one(s) for s in todo], in `workers` forked processes (`forked.forked_map`; 0: as many as
+    torch has threads, i.e. one per core unless `threads=` or an `evaluate jobs=N` worker set
+    fewer) when there are at least PARALLEL_MIN_SAMPLES. Each solve is single-threaded (the
     body's tensors are small: body/_threads.py) and its Python holds the interpreter lock most
     of the time, so threads gain nothing on a short motion (docs/results.md, "The final solve's
     posing pass"); forked children inherit the inputs and give each sample the bitwise result
     it has here."""
-    workers = workers if workers > 0 else (os.cpu_count() or 1)
+    workers = workers if workers > 0 else torch.get_num_threads()
     return list(forked_map(one, todo, workers if len(todo) >= PARALLEL_MIN_SAMPLES else 1))
 
 

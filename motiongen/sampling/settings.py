@@ -115,8 +115,10 @@ class LoopConfig:
     # spectrum (PSKL) in the dynamic setting (docs/sampling.md, docs/results.md).
     solve: str = "refined"
     # Processes solving a batch's samples side by side in the final solve, from
-    # assemble.PARALLEL_MIN_SAMPLES samples on (fewer stay here): 0 = one per CPU core, 1 = none.
-    # Each sample's result is the same either way.
+    # assemble.PARALLEL_MIN_SAMPLES samples on (fewer stay here): 0 = as many as torch has
+    # threads (one per core by default; `threads=N` or an `evaluate jobs=N` worker's share gives
+    # fewer, so parallel evaluations do not oversubscribe the cores), 1 = none. Each sample's
+    # result is the same either way.
     solve_workers: int = 0
     # Actions done with a hand on the nearest placed object: the final solve puts the nearer
     # hand on it over the frames so labelled. () leaves hands where the network put them.
