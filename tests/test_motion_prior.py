@@ -4,6 +4,8 @@ Tiny channel widths and windows keep the whole file well under a minute on 2 cor
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 import torch
@@ -250,6 +252,24 @@ def test_marker_data_from_joints_only_dataset_is_fitted_and_cached(tmp_path, cap
     again, _, _ = prior_data(str(root), ("train",), fit_mlp="none")
     assert "from " in capsys.readouterr().out.splitlines()[-1]                # read from the cache
     assert np.array_equal(again["train"].frames, data["train"].frames)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="workers fork on Linux only (motiongen.forked)")
+def test_marker_fitting_in_forked_workers_equals_one_process(tmp_path):
+    """Joints-only sequences fitted in two forked workers give the markers one process gives,
+    in sequence order (the workers return in any order)."""
+    from motiongen.body.model import load_body_model
+    from motiongen.capture.prior_data import split_markers
+    from motiongen.data.format import MotionDataset
+    from tests.helpers import make_dataset
+
+    ds = MotionDataset.open(make_dataset(tmp_path / "ds", scenes=(1,), seqs_per_scene=3, T=10, obstacle=False))
+    bm = load_body_model(None)
+    one = split_markers(ds, "train", bm, fit_mlp="none", cache=False, verbose=False, workers=1)
+    two = split_markers(ds, "train", bm, fit_mlp="none", cache=False, verbose=False, workers=2)
+    assert len(one.lengths) == 3
+    assert one.names == two.names and np.array_equal(one.lengths, two.lengths)
+    assert np.array_equal(one.frames, two.frames)
 
 
 @pytest.mark.parametrize("args,message", [
