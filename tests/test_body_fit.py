@@ -1,5 +1,8 @@
 """Joints -> SMPL-X: the 3-frame MLP, initialisation, refinement, AMASS output."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import torch
@@ -178,3 +181,23 @@ def test_train_mlp_checkpoint_round_trip_and_fit(bm, tmp_path):
     torch.testing.assert_close(again.predict(X)["rotmats"], model.predict(X)["rotmats"])
     fit = fit_joints(X, bm, str(path))
     assert fit.init == "mlp" and fit.mpjpe_mlp is not None and fit.mpjpe < 0.015
+
+
+def test_refine_imports_no_compiler_and_still_converges():
+    """refine's L-BFGS is built without importing torch's compiler (a 1.4 s import on the
+    first optimizer of a process, nothing compiled): in a fresh process a refine leaves
+    torch._dynamo unloaded and still fits its target, and the optimizer's wrapper is as it was."""
+    code = """
+import sys, torch
+from motiongen.body.fit import RefineConfig, refine
+from motiongen.body.model import load_body_model
+bm = load_body_model(None)
+R0 = torch.eye(3).expand(8, 22, 3, 3).clone()
+X = bm.joints_from_rotmats(R0, torch.zeros(8, 3), torch.zeros(10)) + torch.tensor([0.1, 0.0, 0.0])
+R, transl, _, steps, _ = refine(bm, X, R0, torch.zeros(10), RefineConfig(max_steps=20), fixed_betas=True)
+assert steps >= 1 and (transl - torch.tensor([0.1, 0.0, 0.0])).norm(dim=-1).max() < 1e-3, transl
+print("torch._dynamo" in sys.modules, hasattr(torch.optim.Optimizer.add_param_group.__wrapped__, "__dynamo_disable"))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["False", "False"]          # no compiler loaded, the wrapper's cache left empty

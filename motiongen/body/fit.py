@@ -29,8 +29,10 @@ pure overhead here, so refinement runs single-threaded by default (`threads`).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import sys
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -262,15 +264,37 @@ def _contact_terms(cfg: RefineConfig, target: torch.Tensor, contact: torch.Tenso
     return ct
 
 
+@contextlib.contextmanager
+def _without_compiler_import():
+    """Construct a torch optimizer without importing torch's compiler. Optimizer.add_param_group
+    is wrapped to keep torch.compile out of it, and the wrapper imports torch._dynamo on its first
+    call (1.4 s once per process: a quarter of a short `motiongen sample` run, in which nothing
+    is compiled). The wrapper calls the function it finds cached on the raw one, so the raw
+    function is cached as itself for the construction. Where torch has no such wrapper, or the
+    compiler is loaded already, nothing changes; tests/test_body_fit.py checks that a refine
+    imports no compiler."""
+    raw = getattr(torch.optim.Optimizer.add_param_group, "__wrapped__", None)
+    if raw is None or "torch._dynamo" in sys.modules or hasattr(raw, "__dynamo_disable"):
+        yield
+        return
+    setattr(raw, "__dynamo_disable", raw)
+    try:
+        yield
+    finally:
+        delattr(raw, "__dynamo_disable")
+
+
 def _optimise(cfg: RefineConfig, params: list, loss_fn) -> tuple[int, list[float]]:
     history: list[float] = []
     steps = 0
     if cfg.optimizer == "lbfgs":
-        opt = torch.optim.LBFGS(params, lr=cfg.lr, max_iter=cfg.max_steps, history_size=20,
-                                tolerance_grad=1e-7, tolerance_change=cfg.tol, line_search_fn="strong_wolfe")
+        with _without_compiler_import():
+            opt = torch.optim.LBFGS(params, lr=cfg.lr, max_iter=cfg.max_steps, history_size=20,
+                                    tolerance_grad=1e-7, tolerance_change=cfg.tol, line_search_fn="strong_wolfe")
 
         def closure():
-            opt.zero_grad(set_to_none=True)
+            for p in params:          # opt.zero_grad(set_to_none=True), whose wrapper imports the compiler
+                p.grad = None
             loss = loss_fn()
             loss.backward()
             history.append(loss.item())
