@@ -48,6 +48,28 @@ def test_checkpoint_keep_last_and_links(tmp_path):
     assert load_checkpoint(tmp_path / "best.pt")["step"] == 2         # survives pruning of step 2
 
 
+def test_ctrl_c_inside_torch_save_stays_an_interrupt(tmp_path, monkeypatch):
+    """Ctrl-C while torch.save writes: its zip writer then fails on closing the half file
+    (RuntimeError "unexpected pos ...", the interrupt as its context). The save raises the
+    interrupt itself (the CLI's one line and exit 130), leaves no temp file, and last.pt keeps
+    the previous checkpoint."""
+    save_checkpoint({"format": "motiongen-checkpoint", "step": 1}, tmp_path, 1, keep_last=3)
+
+    def interrupted_save(obj, f):
+        f.write(b"PK half a zip")
+        try:
+            raise KeyboardInterrupt
+        finally:
+            raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 1328448 vs 1328336")
+
+    monkeypatch.setattr(torch, "save", interrupted_save)
+    with pytest.raises(KeyboardInterrupt):
+        save_checkpoint({"format": "motiongen-checkpoint", "step": 2}, tmp_path, 2, keep_last=3)
+    monkeypatch.undo()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["last.pt", "step_00000001.pt"]
+    assert load_checkpoint(tmp_path / "last.pt")["step"] == 1
+
+
 def test_checkpoint_errors(tmp_path):
     with pytest.raises(MotiongenError, match="not found"):
         load_checkpoint(tmp_path / "nope.pt")

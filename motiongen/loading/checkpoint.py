@@ -33,8 +33,12 @@ def _atomic_torch_save(obj, path: Path) -> None:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:                         # an error or Ctrl-C mid-write: no half file left
+    except BaseException as e:                    # an error or Ctrl-C mid-write: no half file left
         tmp.unlink(missing_ok=True)
+        if isinstance(e.__context__, KeyboardInterrupt) and not isinstance(e, KeyboardInterrupt):
+            # Ctrl-C inside torch.save: its zip writer then fails to close the half file
+            # ("unexpected pos ..."), and that error would hide the interrupt from the CLI.
+            raise e.__context__ from None
         raise
 
 
