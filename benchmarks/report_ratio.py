@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from motiongen.cli import tool_main
+from motiongen.cli import parse_key_values, tool_main
 from motiongen.errors import ConfigError, DataError
 
 # (key, label, better): better "low", "high" or "near" (closer to the data's value is better,
@@ -49,16 +49,16 @@ def _change(base: float, other: float, better: str, tol: float) -> tuple[str, bo
     return text, worse
 
 
+SPEC = {"tolerance": (float, 0.10), "rows": (list, ["model", "model_raw"])}
+USAGE = __doc__.splitlines()[2].strip()
+
+
 def run(argv: list[str]) -> None:
-    files = [a for a in argv if "=" not in a]
-    opts = dict(a.split("=", 1) for a in argv if "=" in a)
-    if len(files) != 2 or set(opts) - {"tolerance", "rows"}:
-        raise ConfigError("usage: " + __doc__.splitlines()[2].strip())
-    try:
-        tol = float(opts.get("tolerance", "0.10"))
-    except ValueError:
-        raise ConfigError(f"tolerance: expected a number, got {opts['tolerance']!r}") from None
-    rows = opts.get("rows", "model,model_raw").split(",")
+    files = [a for a in argv if "=" not in a and not a.startswith("-")]
+    if len(files) != 2:
+        raise ConfigError("usage: " + USAGE)
+    opts = parse_key_values([a for a in argv if a not in files], SPEC, usage=USAGE)
+    tol, rows = opts["tolerance"], opts["rows"]
     base, other = _load(files[0]), _load(files[1])
     print(f"{files[1]} against {files[0]} (tolerance {tol:.0%}; ! = worse by more)")
     for setting in base:
