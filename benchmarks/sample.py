@@ -2,7 +2,7 @@
 
     python benchmarks/sample.py [ckpt=PATH] [threads=2] [preset=paper] [episodes=6] [project=true]
                                 [stride=3] [length=16] [samplers=ddpm-100,ddim-50,ddim-25,ddim-10] [batches=1,8]
-                                [precisions=fp32,bf16] [solves=refined] [memos=on] [workers=0]
+                                [precisions=fp32,bf16,int8-encoders,int8] [solves=refined] [memos=on] [workers=0]
 
 Speed: the `paper` preset with random-init weights (speed does not depend on training) on the
 CPU, one row per sampler x batch x precision x final-solve method (`loop.solve`), each run in a
@@ -20,12 +20,12 @@ the network alone. A distilled student with n steps costs exactly
 what `ddim-n` costs here (the same network, guidance folded in, n evaluations per window), so
 the issue-27 figure is
 
-    python benchmarks/sample.py samplers=ddim-25,ddim-2,ddim-1 batches=1,64 precisions=bf16 solves=refined,lbfgs,joint-space
+    python benchmarks/sample.py samplers=ddim-25,ddim-2,ddim-1 batches=1,64 precisions=fp32,int8-encoders,int8 solves=refined,joint-space
 
 `stride=2 length=24` gives the model 15 fps windows of the same 1.6 s (the demo's and quality
 recipe's rate), which also sets the rate-dependent clean-up (seam blend, the solve's weights).
 Ceiling: before the rows, what the network's linear layers alone allow on this host at batch
-1 (`_ceiling`): their multiply-adds for one window (counted by forward hooks on a one-step run:
+1, in fp32 and as `precision=int8-encoders` and `int8` hold them (`_ceiling`): their multiply-adds for one window (counted by forward hooks on a one-step run:
 the scene encoder once, the denoiser once per step, the action encoder as memoised), timed
 back to back at the window's own shapes, against the seconds of motion a window adds. No
 sampler with that many steps can be faster than that bound, whatever else it saves; a
@@ -54,7 +54,7 @@ from motiongen.data.representation import Layout
 from motiongen.data.windows import NormStats, WindowConfig
 from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, MaskConfig
 from motiongen.diffusion.masks import predicts_goal
-from motiongen.loading.build import PRECISIONS, load_model, resolve_precision
+from motiongen.loading.build import PRECISIONS, load_model, resolve_precision, set_precision
 from motiongen.models import build_model, model_config
 from motiongen.sampling import Goal, LoopConfig, SamplerSettings, autoregressive, cleanup, generate, plan_scene_route
 from motiongen.sampling.assemble import SOLVE_METHODS
@@ -67,7 +67,7 @@ SETTINGS = [("ddpm", 100), ("ddim", 50), ("ddim", 25), ("ddim", 10)]
 def _args(argv):
     out = {"ckpt": None, "threads": "2", "preset": "paper", "episodes": "6", "project": "true",
            "stride": "3", "length": "16", "samplers": ",".join(f"{s}-{n}" for s, n in SETTINGS), "batches": "1,8",
-           "precisions": "fp32,bf16", "solves": "refined", "memos": "on", "workers": "0"}
+           "precisions": "fp32,bf16,int8-encoders,int8", "solves": "refined", "memos": "on", "workers": "0"}
     for a in argv:
         k, _, v = a.partition("=")
         out[k] = v
@@ -113,7 +113,7 @@ def _speed_row(a: dict, sampler: str, steps: int, batch: int, prec: str, solve: 
     torch.set_num_threads(int(a["threads"]))
     torch.manual_seed(0)
     loaded = _random_loaded(a["preset"], int(a["stride"]), int(a["length"]))
-    loaded.model = loaded.model.blocks_to(PRECISIONS[prec])
+    loaded.model = set_precision(loaded.model, prec)
     loaded.model.memoise_actions = memo == "on"
     project = a["project"] == "true"
     walk, _ = plan_scene_route((0, 0), [Goal([0, 100.0])], loaded.action_names, path="straight")
@@ -135,11 +135,14 @@ def _speed_row(a: dict, sampler: str, steps: int, batch: int, prec: str, solve: 
              resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
 
 
-def _ceiling(loaded, steps: list[int], episodes: int) -> None:
-    """Print the real-time factor the network's linear layers alone allow at batch 1 in fp32
-    for each step count: a one-step run of the rows' walk (`episodes` windows, no body) counts
+def _ceiling(a: dict, steps: list[int]) -> None:
+    """Print the real-time factor the network's linear layers alone allow at batch 1, in fp32
+    and with int8 layers (the encoders', then all), for each step count: a one-step run of the rows' walk (`episodes` windows, no body) counts
     each layer's multiply-adds and input shape per window (forward hooks), then those layers
-    are timed back to back."""
+    are timed back to back. Run in a child process (spawned: the linear layers' copies would
+    otherwise raise the peak memory the rows' children inherit)."""
+    torch.set_num_threads(int(a["threads"]))
+    loaded, episodes = _random_loaded(a["preset"], int(a["stride"]), int(a["length"])), int(a["episodes"])
     calls = []                                                   # (name, rows M of the input, weight (N, K))
 
     def hook(mod, inputs, _, name):
@@ -160,25 +163,39 @@ def _ceiling(loaded, steps: list[int], episodes: int) -> None:
     once = [c for c, e in zip(calls, encoders) if e]
     per_step = [c for c, e in zip(calls, encoders) if not e]
 
-    def seconds(cs):                                             # the layers back to back, best of 5
-        xs = [(torch.randn(M, w.shape[1]), w.float()) for _, M, w in cs]
+    def seconds(cs, int8):                                       # the layers back to back, best of 5
+        layers = torch.nn.ModuleDict()                           # each layer once, under its weight's id
+        for _, _, w in cs:
+            if str(id(w)) not in layers:
+                layers[str(id(w))] = torch.nn.Linear(w.shape[1], w.shape[0])
+                with torch.no_grad():
+                    layers[str(id(w))].weight.copy_(w.float())
+        if int8:                                                 # as Denoiser.quantize_layers
+            layers = torch.ao.quantization.quantize_dynamic(
+                layers, {torch.nn.Linear: torch.ao.quantization.per_channel_dynamic_qconfig}, dtype=torch.qint8)
+        xs = [(layers[str(id(w))], torch.randn(M, w.shape[1])) for _, M, w in cs]
         best = float("inf")
         for _ in range(5):
             t = time.perf_counter()
             with torch.inference_mode():
-                for x, w in xs:
-                    torch.nn.functional.linear(x, w)
+                for layer, x in xs:
+                    layer(x)
             best = min(best, time.perf_counter() - t)
         return best / windows
 
     flops = [sum(2 * M * w.numel() for _, M, w in cs) / windows for cs in (once, per_step)]
-    t_once, t_step = seconds(once), seconds(per_step)
     motion = m.duration / windows
-    print(f"ceiling at batch 1, fp32, linear layers only: {motion:.2f} s of motion per window; encoders "
-          f"{flops[0] / 1e9:.2f} GFLOP in {1e3 * t_once:.1f} ms, each denoising step {flops[1] / 1e9:.2f} GFLOP in "
-          f"{1e3 * t_step:.1f} ms ({(flops[0] + flops[1]) / (t_once + t_step) / 1e9:.0f} GFLOP/s)")
-    print("  at most " + ", ".join(f"{motion / (t_once + n * t_step):.1f}x real time for {n} step{'s' * (n > 1)}"
-                                   for n in steps))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")                          # torch's eager quantization API is marked deprecated
+        t = {(part, int8): seconds(cs, int8) for part, cs in (("once", once), ("step", per_step)) for int8 in (0, 1)}
+    for prec, (t_once, t_step) in (("fp32", (t["once", 0], t["step", 0])),
+                                   ("int8-encoders", (t["once", 1], t["step", 0])),
+                                   ("int8", (t["once", 1], t["step", 1]))):
+        print(f"ceiling at batch 1, {prec}, linear layers only: {motion:.2f} s of motion per window; encoders "
+              f"{flops[0] / 1e9:.2f} GFLOP in {1e3 * t_once:.1f} ms, each denoising step {flops[1] / 1e9:.2f} "
+              f"GFLOP in {1e3 * t_step:.1f} ms ({(flops[0] + flops[1]) / (t_once + t_step) / 1e9:.0f} GFLOP/s)")
+        print("  at most " + ", ".join(f"{motion / (t_once + n * t_step):.1f}x real time for {n} step{'s' * (n > 1)}"
+                                       for n in steps))
 
 
 def _time_body() -> list:
@@ -219,10 +236,12 @@ def main(argv):
     torch.set_num_threads(int(a["threads"]))
     loaded = _random_loaded(a["preset"], int(a["stride"]), int(a["length"]))
     print(f"precision=auto (the default) uses {resolve_precision(loaded.model, 'auto')} for this model")
-    _ceiling(loaded, [n for _, n in _samplers(a["samplers"])], int(a["episodes"]))
+    ctx = multiprocessing.get_context("spawn")
+    p = ctx.Process(target=_ceiling, args=(a, [n for _, n in _samplers(a["samplers"])]))
+    p.start()                                  # a child of its own: its layer copies stay out of the rows' peak memory
+    p.join()
     print(f"{'sampler':>10} {'batch':>5} {'precision':>9} {'solve':>11} {'memo':>4} {'motion s':>9} {'wall s':>7} {'RTF':>6} "
           f"{'frames/s':>8} {'x first':>7} {'body %':>6} {'peak MiB':>8}")
-    ctx = multiprocessing.get_context("spawn")
     first = {}
     for sampler, steps in _samplers(a["samplers"]):
         for batch in map(int, filter(None, a["batches"].split(","))):

@@ -124,6 +124,7 @@ def test_evaluate_end_to_end(ckpt, tmp_path):
             assert not missing, (st, row, missing)
         assert block["reference"]["goal_dist_m"] is None and block["reference"]["apd_m"] is None
         assert block["model"]["apd_m"] is not None and block["model"]["foot_skating"] is not None
+        assert block["model_raw"]["apd_m"] != block["model"]["apd_m"]     # the network's own samples, not the output's
         # the output is one body whatever a 100-step model predicts; the network's own joints are not
         assert block["model"]["bone_max_dev"] < 1e-3 < block["model_raw"]["bone_max_dev"]
         # every row is measured on a body mesh (the data and the network's joints on a body put on them)
@@ -141,6 +142,7 @@ def test_evaluate_end_to_end(ckpt, tmp_path):
     r = _run("evaluate.py", [f"ckpt={ckpt}", f"out={out2}", "plots=false", "settings=[static]", *EVAL])
     assert r.returncode == 0, r.stderr[-3000:]
     rep2 = json.loads((out2 / "report.json").read_text())
+    assert not (out2 / "plots").exists() and "plots/" not in (out2 / "report.md").read_text()   # no links to figures not drawn
     assert rep2["settings"]["static"]["model"] == {**rep["settings"]["static"]["model"],
                                                    "seconds_per_pair": rep2["settings"]["static"]["model"]["seconds_per_pair"]}
     # loop.* keys reach the sampler: without the body the output is the network's own joints;

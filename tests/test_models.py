@@ -251,6 +251,43 @@ def test_bf16_layers_keep_the_output_within_a_few_percent(one_thread):
         _tiny().train().blocks_to(torch.bfloat16)
 
 
+def test_int8_layers_quantize_every_transformer_layer_and_keep_the_output_close(one_thread):
+    """precision=int8 (sampling on a CPU): every linear map inside the three transformer stacks
+    holds int8 weights, everything outside them stays float32, and the prediction moves by
+    8-bit rounding (more than bf16's, far less than a different network's); int8-encoders
+    quantizes the two encoders' stacks only."""
+    import copy
+
+    from torch.ao.nn.quantized.dynamic import Linear as Int8Linear
+
+    m = _tiny()
+    cond, g = _cond(4), torch.Generator().manual_seed(1)
+    x, t = torch.randn(4, L, m.channels, generator=g), torch.tensor([10, 200, 500, 900])
+    with torch.inference_mode():
+        ref = m(x, t, cond)
+        q = copy.deepcopy(m).quantize_layers()
+        out = q(x, t, cond)
+        torch.manual_seed(1)
+        other = build_model(model_config("tiny"), J, A, L).eval()(x, t, cond)     # another network
+    for stack in (q.blocks, q.scene_encoder.blocks, q.action_encoder.blocks):
+        kinds = {type(mod) for mod in stack.modules() if isinstance(mod, (torch.nn.Linear, Int8Linear))}
+        assert kinds == {Int8Linear}, kinds
+    assert {type(q.input), type(q.output), type(q.scene_encoder.patch_embed)} == {torch.nn.Linear}
+    assert out.dtype == torch.float32
+    err = float((out - ref).norm() / ref.norm())
+    assert 1e-4 < err < 0.05, err
+    assert float((other - ref).norm() / ref.norm()) > 10 * err
+    # int8-encoders: the denoiser's own layers stay float32, and the prediction moves less
+    with torch.inference_mode():
+        enc = copy.deepcopy(m).quantize_layers(denoiser=False)
+        err_enc = float((enc(x, t, cond) - ref).norm() / ref.norm())
+    assert {type(mod) for mod in enc.blocks.modules() if isinstance(mod, torch.nn.Linear)} == {torch.nn.Linear}
+    assert {type(mod) for mod in enc.scene_encoder.blocks.modules() if isinstance(mod, Int8Linear)} == {Int8Linear}
+    assert 0 < err_enc < err, (err_enc, err)
+    with pytest.raises(RuntimeError, match="for sampling"):
+        _tiny().train().quantize_layers()
+
+
 def test_precision_auto_is_bf16_for_paper_size_layers_on_native_bf16_only(monkeypatch):
     from motiongen.errors import ConfigError
     from motiongen.loading import build
@@ -263,5 +300,6 @@ def test_precision_auto_is_bf16_for_paper_size_layers_on_native_bf16_only(monkey
     monkeypatch.setattr(build, "native_bf16", lambda device: False)      # an AVX2-only CPU
     assert resolve_precision(paper, "auto") == "fp32"
     assert resolve_precision(paper, "fp32") == "fp32" and resolve_precision(_tiny(), "bf16") == "bf16"
-    with pytest.raises(ConfigError, match="precision: expected one of fp32, bf16, auto"):
+    assert resolve_precision(paper, "int8") == "int8"                   # asked for, never chosen by auto
+    with pytest.raises(ConfigError, match="precision: expected one of fp32, bf16, int8, int8-encoders, auto"):
         resolve_precision(paper, "fp16")

@@ -110,7 +110,8 @@ BAD = {
     "missing_ckpt": (["goals=[[1.5,-1.0]]", "ckpt={dir}/none.pt"], "checkpoint file does not exist"),
     "missing_scene": (["goals=[[1.5,-1.0]]", "scene={dir}/nothing.obj"], "scene mesh file or folder is missing"),
     "bad_goals_file": (["goals_file={dir}/bad.json"], "goals[0]"),
-    "bad_precision": (["goals=[[1.5,-1.0]]", "precision=fp16"], "precision: expected one of fp32, bf16, auto"),
+    "bad_precision": (["goals=[[1.5,-1.0]]", "precision=fp16"], "precision: expected one of fp32, bf16, int8, int8-encoders, auto"),
+    "int8_on_gpu": (["goals=[[1.5,-1.0]]", "precision=int8", "device=cuda"], "precision=int8: int8 layers run on the CPU only"),
     "bad_camera": (["goals=[[1.5,-1.0]]", "video_camera=orbit"], "video_camera: expected one of adaptive, follow, top"),
     "diverged_ckpt": (["goals=[[1.5,-1.0]]", "ckpt={dir}/diverged.pt"], "diverged.pt [ema]: non-finite weights"),
     "goal_far": (["goals=[[1e300,0.0]]"], "goals[0]: expected a point [x, z] of two numbers within"),
@@ -191,3 +192,17 @@ def test_scene_unit_scales_the_mesh_to_metres(files, tmp_path):
     m = load_scene_grid(files["scene"], voxel_size=0.05, use_cache=False)
     cm = load_scene_grid(files["dir"] / "room_cm.obj", voxel_size=0.05, use_cache=False, unit="cm")
     assert m.shape == cm.shape and np.allclose(m.origin, cm.origin) and np.array_equal(m.bits, cm.bits)
+
+
+def test_int8_layers_sample_end_to_end_and_say_so(files, tmp_path, capsys):
+    """precision=int8 from the command line: the run completes on quantized layers and
+    summary.json and motion.npz record the precision that ran."""
+    out = tmp_path / "int8"
+    r = run_command("sample", [f"ckpt={files['ckpt']}", f"scene={files['scene']}", "start=[-1.5,-1.5]",
+                               "goals=[[1.5,-1.0]]", "precision=int8", "video=false", "plot=false", "steps=2",
+                               "loop.max_episodes=2", f"out={out}", "threads=1"], capsys)
+    assert r.returncode in (0, 3), r.stderr[-2000:]                # 3: the random model reached no goal
+    assert "int8 layers" in r.stdout
+    assert json.loads((out / "summary.json").read_text())["precision"] == "int8"
+    with np.load(out / "motion.npz", allow_pickle=False) as z:
+        assert str(z["precision"]) == "int8" and np.isfinite(z["joints"]).all()

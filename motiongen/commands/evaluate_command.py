@@ -74,7 +74,7 @@ def evaluate_and_write(cfg: EvaluateConfig, out: Path, ckpts: list[Path], settin
     if cfg.jobs > 1:
         # The parts ran side by side: the report's wall time is the run's, not their sum.
         report["wall_s"], report["meta"]["jobs"] = time.perf_counter() - t0, cfg.jobs
-    md = markdown(report)
+    md = markdown(report, cfg.plots)
     first = runs[0]
     title = f"{first.ckpt.name} step {first.loaded.step}" + (f" (1 of {len(runs)} checkpoints)" if len(runs) > 1 else "")
     written, images = write_report(out, report, md, done[0][1], title, cfg.plots)
@@ -82,7 +82,7 @@ def evaluate_and_write(cfg: EvaluateConfig, out: Path, ckpts: list[Path], settin
     if cfg.run_dir:
         log_tensorboard(Path(cfg.run_dir), {**report, "_markdown": md}, images, first.loaded.step)
     print(md, flush=True)
-    print(f"wrote {len(written)} files to {out} (report.json, report.md, plots/)" +
+    print(f"wrote {len(written)} files to {out} (report.json, report.md{', plots/' if cfg.plots else ''})" +
           (f"; logged to TensorBoard in {cfg.run_dir}" if cfg.run_dir else ""), flush=True)
     return report
 

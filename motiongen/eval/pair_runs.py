@@ -37,6 +37,7 @@ class PairResult:
     per_sample: list[dict]              # k metric dicts of the output motions
     per_sample_raw: list[dict]          # the same metrics on the network's own joints (before the body)
     apd: float
+    apd_raw: float                      # the network's own joints' APD
     joints: np.ndarray                  # (k, T, J, 3) float32 world joints at 30 fps, the whole batch
     kept: list[np.ndarray]              # k arrays (T_s, J, 3): each sample up to its finish
     kept_raw: list[np.ndarray]          # the same for the network's own joints
@@ -89,7 +90,7 @@ def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler
             again, _ = sample_pair(loaded, ctx, pair, cfg, sampler, body_model,
                                    dataclasses.replace(loop, **CLEANUP_STAGES[s]))
             ablation[s] = measure(again, ctx, pair, cfg, meshes)
-    return PairResult(pair, out.per_sample, raw.per_sample, out.apd, motion.joints, out.kept, raw.kept,
+    return PairResult(pair, out.per_sample, raw.per_sample, out.apd, raw.apd, motion.joints, out.kept, raw.kept,
                       out.completed, wall, {s: ablation[s] for s in stages})
 
 

@@ -85,7 +85,7 @@ def view(r: PairResult, row: str) -> Measured:
     if row == "model":
         return Measured(r.per_sample, r.kept, r.apd, r.completed)
     if row == "model_raw":
-        return Measured(r.per_sample_raw, r.kept_raw, r.apd, r.completed)
+        return Measured(r.per_sample_raw, r.kept_raw, r.apd_raw, r.completed)
     return r.ablation[row]
 
 

@@ -119,7 +119,8 @@ def _title(m: dict) -> list[str]:
             + ".", ""]
 
 
-def markdown(report: dict) -> str:
+def markdown(report: dict, plots: bool = True) -> str:
+    """report.md's text; `plots`: whether the figures it links to were written (evaluate plots=)."""
     m = report["meta"]
     lines = [*_title(m),
              f"Dataset `{m['dataset']}`, {m.get('split', 'test')} scenes {', '.join(str(s) for s in m['scenes'])}; "
@@ -160,11 +161,12 @@ def markdown(report: dict) -> str:
                 lines.append(f"| {name} | " + " | ".join(_cell(block, key, k, u) for k, _, u, _ in keys) + " |")
             lines.append("")
         lines += ablation_table(st, block)
-        lines += [f"![{st} metrics](plots/{st}_metrics.png)", ""]
+        lines += [f"![{st} metrics](plots/{st}_metrics.png)", ""] if plots else []
     if report["notes"]:
         lines += ["## Notes", ""] + [f"- {x}" for x in report["notes"]] + [""]
-    lines += ["Trajectory figures: `plots/<setting>_scene<id>.png` (map, A* path, start ●, goal ★ / "
-              "interaction ■, object ▲, the k pelvis tracks).", ""]
+    if plots:
+        lines += ["Trajectory figures: `plots/<setting>_scene<id>.png` (map, A* path, start ●, goal ★ / "
+                  "interaction ■, object ▲, the k pelvis tracks).", ""]
     return "\n".join(lines)
 
 

@@ -192,12 +192,13 @@ def load_weights(module: torch.nn.Module, weights: dict, path, part: str, model_
     module.load_state_dict(weights)
 
 
-PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16}
+PRECISIONS = ("fp32", "bf16", "int8", "int8-encoders")
 # precision=auto: bf16 from this many parameters in the denoiser's transformer layers, where
 # the device multiplies bfloat16 natively. On such a CPU the paper-size layers (12.6 M) run
 # their steps faster in bf16, the quality recipe's (1.2 M) do not; on a CPU without (AVX2 only)
 # bf16 is emulated and the paper-size steps are slower than fp32 (benchmarks/sample.py
-# measures both).
+# measures both). auto never chooses int8: no paper-size checkpoint has been measured with it
+# (docs/sampling.md).
 AUTO_BF16_PARAMS = 4_000_000
 
 
@@ -208,11 +209,22 @@ def check_precision(precision: str) -> str:
 
 
 def resolve_precision(model, precision: str) -> str:
-    """fp32 | bf16 for a model and a `precision` key (fp32, bf16 or auto)."""
+    """One of PRECISIONS for a model and a `precision` key (one of them or auto)."""
     if check_precision(precision) != "auto":
         return precision
     big = sum(p.numel() for p in model.blocks.parameters()) >= AUTO_BF16_PARAMS
     return "bf16" if big and native_bf16(next(model.parameters()).device) else "fp32"
+
+
+def set_precision(model, precision: str):
+    """Put an eval-mode denoiser's transformer layers at `precision` (one of PRECISIONS) for
+    sampling: bf16 weights (Denoiser.blocks_to), or int8 ones on the CPU for every transformer
+    layer or the encoders' only (quantize_layers)."""
+    if precision.startswith("int8"):
+        return model.quantize_layers(denoiser=precision == "int8")
+    if precision == "bf16":
+        return model.blocks_to(torch.bfloat16)
+    return model
 
 
 def native_bf16(device: torch.device) -> bool:
@@ -225,11 +237,13 @@ def native_bf16(device: torch.device) -> bool:
 
 def load_model(path, device="cpu", use_ema: bool = True, precision: str = "fp32") -> LoadedModel:
     """Rebuild a trained model from a checkpoint file (config and statistics inside it).
-    `precision`: the denoiser's transformer layers for sampling, fp32, bf16 (Denoiser.blocks_to)
+    `precision`: the transformer layers for sampling, one of PRECISIONS (set_precision)
     or auto (resolve_precision); `loaded.precision` says which.
     Anything wrong with the file or the device is a user error (MotiongenError)."""
     check_precision(precision)                      # a bad key fails before the file is read
     device = str(device)
+    if precision.startswith("int8") and device != "cpu":
+        raise ConfigError(f"precision={precision}: int8 layers run on the CPU only, not device={device} (use fp32 or bf16)")
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise ConfigError(f"device={device}: CUDA is not available")
     state = load_checkpoint(path, map_location="cpu")
@@ -244,8 +258,7 @@ def load_model(path, device="cpu", use_ema: bool = True, precision: str = "fp32"
         first = str(e).splitlines()[0] if str(e) else ""
         raise DataError(path, None, f"unreadable or incompatible checkpoint ({type(e).__name__}: {first})") from None
     loaded.precision = resolve_precision(loaded.model, precision)
-    if loaded.precision != "fp32":
-        loaded.model.blocks_to(PRECISIONS[loaded.precision])
+    set_precision(loaded.model, loaded.precision)
     return loaded
 
 

@@ -17,8 +17,10 @@ class CheckpointKeys:
     ckpt: str | None = None        # required: a checkpoint written by train.py
     device: str = "cpu"            # cpu | cuda | cuda:N
     threads: int = 0               # torch CPU threads (0 = torch's default)
-    # fp32 | bf16 | auto: the denoiser's transformer layers in bfloat16 for sampling; auto = bf16
-    # for paper-size layers, which run faster in it on a CPU, fp32 for small ones (docs/sampling.md).
+    # fp32 | bf16 | int8 | int8-encoders | auto: the transformer layers' weights for sampling
+    # (int8: every transformer layer, int8-encoders: the encoders' only; CPU only);
+    # auto = bf16 for paper-size layers where the device multiplies bfloat16 natively, else fp32
+    # (docs/sampling.md).
     precision: str = "auto"
     body_model: str | None = None  # SMPL-X .npz of the motion's body; None = $MOTIONGEN_SMPLX_MODEL, else the procedural model
 

@@ -9,16 +9,23 @@ from __future__ import annotations
 
 import functools
 import math
+import warnings
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
 
+from motiongen.errors import ConfigError
 from motiongen.models.action_encoder import ActionEncoder, ActionMemo
 from motiongen.models.condition import Condition
 from motiongen.models.presets import ModelConfig
 from motiongen.models.layers import Dropout, TransformerStack, sinusoidal_embedding
 from motiongen.models.scene_encoder import SceneEncoder
+
+try:  # marked deprecated by torch (in favour of torchao): a torch without it still samples in fp32 and bf16
+    from torch.ao.quantization import per_channel_dynamic_qconfig, quantize_dynamic
+except ImportError:  # pragma: no cover - torch 2.13 has it
+    quantize_dynamic = per_channel_dynamic_qconfig = None
 
 
 @dataclass
@@ -132,6 +139,36 @@ class Denoiser(nn.Module):
             raise RuntimeError("blocks_to: reduced-precision layers are for sampling (call model.eval() first)")
         self.blocks.to(dtype)
         self._blocks_dtype = dtype
+        return self
+
+    def quantize_layers(self, denoiser: bool = True) -> "Denoiser":
+        """Sampling on a CPU: the linear maps of the transformer layers with int8 weights, one
+        scale per output channel, and their inputs quantized to 8 bits at each call (torch's
+        dynamic quantization, fbgemm or qnnpack kernels): the scene and action encoders', and
+        with `denoiser` the denoiser's own. At batch 1 those products are bound by the weight
+        bytes they read; int8 reads a quarter of float32's and runs on any x86-64 or ARM CPU,
+        where bfloat16 needs AVX-512 or AMX. The embeddings, norms and the input and output
+        projections stay float32. The encoders run once per window and their output is one
+        conditioning token, so their rounding barely moves a motion; the denoiser's, at every
+        step and frame, adds jitter (docs/sampling.md)."""
+        if self.training:
+            raise RuntimeError("quantize_layers: int8 layers are for sampling (call model.eval() first)")
+        if next(self.parameters()).device.type != "cpu":
+            raise RuntimeError("quantize_layers: int8 layers run on the CPU only")
+        if quantize_dynamic is None:
+            raise ConfigError(f"precision=int8: torch {torch.__version__} has no dynamic quantization (use fp32 or bf16)")
+        stacks = [m for m in (self.blocks if denoiser else None, getattr(self.scene_encoder, "blocks", None),
+                              getattr(self.action_encoder, "blocks", None)) if m is not None]
+        with warnings.catch_warnings():
+            # torch marks its eager quantization API as deprecated in favour of torchao, whose
+            # int8 layers were 3-30x slower than these on a CPU without torch.compile
+            # (docs/results.md, "int8 layers").
+            warnings.simplefilter("ignore")
+            for stack in stacks:
+                quantize_dynamic(stack, {nn.Linear: per_channel_dynamic_qconfig}, dtype=torch.qint8, inplace=True)
+        if self.action_encoder is not None:
+            self._action_memo.clear()
+        self._blocks_dtype = None
         return self
 
     # -- conditioning -------------------------------------------------------------------
