@@ -3,6 +3,7 @@
     python benchmarks/sample.py [ckpt=PATH] [threads=2] [preset=paper] [episodes=6] [project=true]
                                 [stride=3] [length=16] [samplers=ddpm-100,ddim-50,ddim-25,ddim-10] [batches=1,8]
                                 [precisions=fp32,bf16,int8-encoders,int8] [solves=refined] [memos=on] [workers=0]
+                                [rounds=1]
 
 Speed: the `paper` preset with random-init weights (speed does not depend on training) on the
 CPU, one row per sampler x batch x precision x final-solve method (`loop.solve`), each run in a
@@ -14,6 +15,8 @@ real-time factor to the first row's, the share of the time spent putting the mot
 body (the per-episode projection and the final solve) and the child's peak resident memory.
 `memos=off,on` adds rows with the action encoder run on every window instead of once per
 distinct label window (`Denoiser.memoise_actions`).
+`rounds=N` runs every row N times, round after round (the shared host's speed moves within
+minutes), and prints each row's run of median wall time with every round's real-time factor.
 `workers=N` sets `loop.solve_workers` (0, the default: a batch of 8 or more samples is solved
 in one forked process per torch thread, `threads`; 1: one sample after another here). `project=false` measures
 the network alone. A distilled student with n steps costs exactly
@@ -67,7 +70,8 @@ SETTINGS = [("ddpm", 100), ("ddim", 50), ("ddim", 25), ("ddim", 10)]
 def _args(argv):
     out = {"ckpt": None, "threads": "2", "preset": "paper", "episodes": "6", "project": "true",
            "stride": "3", "length": "16", "samplers": ",".join(f"{s}-{n}" for s, n in SETTINGS), "batches": "1,8",
-           "precisions": "fp32,bf16,int8-encoders,int8", "solves": "refined", "memos": "on", "workers": "0"}
+           "precisions": "fp32,bf16,int8-encoders,int8", "solves": "refined", "memos": "on", "workers": "0",
+           "rounds": "1"}
     for a in argv:
         k, _, v = a.partition("=")
         out[k] = v
@@ -240,23 +244,33 @@ def main(argv):
     p = ctx.Process(target=_ceiling, args=(a, [n for _, n in _samplers(a["samplers"])]))
     p.start()                                  # a child of its own: its layer copies stay out of the rows' peak memory
     p.join()
-    print(f"{'sampler':>10} {'batch':>5} {'precision':>9} {'solve':>11} {'memo':>4} {'motion s':>9} {'wall s':>7} {'RTF':>6} "
-          f"{'frames/s':>8} {'x first':>7} {'body %':>6} {'peak MiB':>8}")
+    rows = [(sampler, steps, batch, prec, solve, memo) for sampler, steps in _samplers(a["samplers"])
+            for batch in map(int, filter(None, a["batches"].split(","))) for prec in precisions
+            for solve in solves for memo in memos]
+    rounds = int(a["rounds"])
+    readings = {row: [] for row in rows}       # (motion s, frames, wall s, body s, peak MiB) per round
+    for r in range(rounds):                    # round after round: every row sees the host of each round
+        for row in rows:
+            q = ctx.Queue()
+            p = ctx.Process(target=_speed_row, args=(a, *row, q))
+            p.start()
+            readings[row].append(q.get())
+            p.join()
+        if rounds > 1:
+            print(f"round {r + 1} of {rounds} done", flush=True)
+    print(f"{'sampler':>10} {'batch':>5} {'precision':>13} {'solve':>11} {'memo':>4} {'motion s':>9} {'wall s':>7} "
+          f"{'RTF':>6} {'frames/s':>8} {'x first':>7} {'body %':>6} {'peak MiB':>8}" + ("  RTF each round" * (rounds > 1)))
     first = {}
-    for sampler, steps in _samplers(a["samplers"]):
-        for batch in map(int, filter(None, a["batches"].split(","))):
-            for prec in precisions:
-                for solve, memo in ((s, m) for s in solves for m in memos):
-                    q = ctx.Queue()
-                    p = ctx.Process(target=_speed_row, args=(a, sampler, steps, batch, prec, solve, memo, q))
-                    p.start()
-                    motion_s, frames, wall, body, rss = q.get()
-                    p.join()
-                    rtf = motion_s / wall
-                    ref = first.setdefault(batch, rtf)
-                    print(f"{sampler + '-' + str(steps):>10} {batch:>5} {prec:>9} {solve:>11} {memo:>4} {motion_s:9.1f} "
-                          f"{wall:7.2f} {rtf:6.2f} {frames / wall:8.0f} {rtf / ref:7.2f} {100 * body / wall:6.1f} "
-                          f"{rss:8.0f}", flush=True)
+    for row in rows:
+        sampler, steps, batch, prec, solve, memo = row
+        runs = sorted(readings[row], key=lambda x: x[2])
+        motion_s, frames, wall, body, rss = runs[len(runs) // 2]               # the median wall time's run
+        rtf = motion_s / wall
+        ref = first.setdefault(batch, rtf)
+        each = "  " + ", ".join(f"{m / w:.2f}" for m, _, w, _, _ in readings[row]) if rounds > 1 else ""
+        print(f"{sampler + '-' + str(steps):>10} {batch:>5} {prec:>13} {solve:>11} {memo:>4} {motion_s:9.1f} "
+              f"{wall:7.2f} {rtf:6.2f} {frames / wall:8.0f} {rtf / ref:7.2f} {100 * body / wall:6.1f} "
+              f"{max(x[4] for x in runs):8.0f}" + each, flush=True)
     if not a["ckpt"]:
         print("quality: pass ckpt=PATH (a trained checkpoint) for goal-reaching errors")
         return
