@@ -28,9 +28,10 @@ the issue-27 figure is
 `stride=2 length=24` gives the model 15 fps windows of the same 1.6 s (the demo's and quality
 recipe's rate), which also sets the rate-dependent clean-up (seam blend, the solve's weights).
 Ceiling: before the rows, what the network's linear layers alone allow on this host at batch
-1, in fp32 and as `precision=int8-encoders` and `int8` hold them (`_ceiling`): their multiply-adds for one window (counted by forward hooks on a one-step run:
-the scene encoder once, the denoiser once per step, the action encoder as memoised), timed
-back to back at the window's own shapes, against the seconds of motion a window adds. No
+1, in fp32 and as `precision=int8-encoders` and `int8` hold them (`_ceiling`): their
+multiply-adds for one window (counted by forward hooks on a one-step run: the scene encoder
+once, the denoiser once per step, the action encoder as memoised), timed back to back at the
+window's own shapes, against the seconds of motion a window adds. No
 sampler with that many steps can be faster than that bound, whatever else it saves; a
 row's real-time factor over it says how much of the time the rest (attention, norms, the
 body) takes.
@@ -141,9 +142,9 @@ def _speed_row(a: dict, sampler: str, steps: int, batch: int, prec: str, solve: 
 
 def _ceiling(a: dict, steps: list[int]) -> None:
     """Print the real-time factor the network's linear layers alone allow at batch 1, in fp32
-    and with int8 layers (the encoders', then all), for each step count: a one-step run of the rows' walk (`episodes` windows, no body) counts
-    each layer's multiply-adds and input shape per window (forward hooks), then those layers
-    are timed back to back. Run in a child process (spawned: the linear layers' copies would
+    and with int8 layers (the encoders', then all), for each step count: a one-step run of the
+    rows' walk (`episodes` windows, no body) counts each layer's multiply-adds and input shape
+    per window (forward hooks), then those layers are timed back to back. Run in a child process (spawned: the linear layers' copies would
     otherwise raise the peak memory the rows' children inherit)."""
     torch.set_num_threads(int(a["threads"]))
     loaded, episodes = _random_loaded(a["preset"], int(a["stride"]), int(a["length"])), int(a["episodes"])
