@@ -26,7 +26,7 @@ def build_app(cfg: ServeConfig, log=print) -> App:
     start = parse_point(cfg.start, "start") if cfg.start is not None else default_start(fmap, None)
     body_model = load_body_model(cfg.body_model)
     gen = noise_generator(loaded, cfg.seed)
-    log(f"serve: {cfg.ckpt} (step {loaded.step}) in {scene.label}; warming up")
+    log(f"serve: {cfg.ckpt} (step {loaded.step}, {loaded.precision} layers) in {scene.label}; warming up")
     live = LiveSampler(loaded, scene.grid, fmap, scene.objects, body_model=body_model, start_xz=start,
                        start_yaw=cfg.start_yaw or 0.0, sampler=SamplerSettings.of(cfg), loop=cfg.loop,
                        generator=gen, subgoal_spacing=cfg.subgoal_spacing)
