@@ -303,3 +303,7 @@ def test_precision_auto_is_bf16_for_paper_size_layers_on_native_bf16_only(monkey
     assert resolve_precision(paper, "int8") == "int8"                   # asked for, never chosen by auto
     with pytest.raises(ConfigError, match="precision: expected one of fp32, bf16, int8, int8-encoders, auto"):
         resolve_precision(paper, "fp16")
+    # a torch without dynamic quantization: int8 refused in one line, before the file is read
+    monkeypatch.setattr(build, "INT8_AVAILABLE", False)
+    with pytest.raises(ConfigError, match="precision=int8-encoders: torch .* has no dynamic quantization"):
+        build.load_model("no-such-file.pt", precision="int8-encoders")

@@ -17,6 +17,7 @@ from motiongen.importers.sources import DataConfig
 from motiongen.loading.checkpoint import load_checkpoint
 from motiongen.models import Condition, ModelConfig, build_model
 from motiongen.models.condition import drop_conditions
+from motiongen.models.denoiser import INT8_AVAILABLE
 from motiongen.rates import DATA_FPS, DEFAULT_STEPS
 from motiongen.skeleton import JointSet, joint_set_for
 
@@ -242,8 +243,11 @@ def load_model(path, device="cpu", use_ema: bool = True, precision: str = "fp32"
     Anything wrong with the file or the device is a user error (MotiongenError)."""
     check_precision(precision)                      # a bad key fails before the file is read
     device = str(device)
-    if precision.startswith("int8") and device != "cpu":
-        raise ConfigError(f"precision={precision}: int8 layers run on the CPU only, not device={device} (use fp32 or bf16)")
+    if precision.startswith("int8"):
+        if device != "cpu":
+            raise ConfigError(f"precision={precision}: int8 layers run on the CPU only, not device={device} (use fp32 or bf16)")
+        if not INT8_AVAILABLE:
+            raise ConfigError(f"precision={precision}: torch {torch.__version__} has no dynamic quantization (use fp32 or bf16)")
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise ConfigError(f"device={device}: CUDA is not available")
     state = load_checkpoint(path, map_location="cpu")

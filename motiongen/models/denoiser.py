@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from motiongen.errors import ConfigError
 from motiongen.models.action_encoder import ActionEncoder, ActionMemo
 from motiongen.models.condition import Condition
 from motiongen.models.presets import ModelConfig
@@ -26,6 +25,7 @@ try:  # marked deprecated by torch (in favour of torchao): a torch without it st
     from torch.ao.quantization import per_channel_dynamic_qconfig, quantize_dynamic
 except ImportError:  # pragma: no cover - torch 2.13 has it
     quantize_dynamic = per_channel_dynamic_qconfig = None
+INT8_AVAILABLE = quantize_dynamic is not None       # Denoiser.quantize_layers can run
 
 
 @dataclass
@@ -155,8 +155,8 @@ class Denoiser(nn.Module):
             raise RuntimeError("quantize_layers: int8 layers are for sampling (call model.eval() first)")
         if next(self.parameters()).device.type != "cpu":
             raise RuntimeError("quantize_layers: int8 layers run on the CPU only")
-        if quantize_dynamic is None:
-            raise ConfigError(f"precision=int8: torch {torch.__version__} has no dynamic quantization (use fp32 or bf16)")
+        if not INT8_AVAILABLE:
+            raise RuntimeError(f"quantize_layers: torch {torch.__version__} has no dynamic quantization")
         stacks = [m for m in (self.blocks if denoiser else None, getattr(self.scene_encoder, "blocks", None),
                               getattr(self.action_encoder, "blocks", None)) if m is not None]
         with warnings.catch_warnings():
