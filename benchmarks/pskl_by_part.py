@@ -1,9 +1,10 @@
 """PSKL by body part, for each final solve (not a timed test).
 
     python benchmarks/pskl_by_part.py ckpt=PATH [split=val] [settings=static,dynamic] [k=2] [pairs=1] [steps=10]
+                                      [solves=lbfgs,joint-space,refined]
 
 Runs the `evaluate` protocol (seed 0, DDIM-`steps`) on the split's scenes once per final
-solve (`loop.solve=lbfgs` and `joint-space`) and prints PSKL(gen, ref) / PSKL(ref, gen) of the
+solve (`loop.solve`, each of `solves`) and prints PSKL(gen, ref) / PSKL(ref, gen) of the
 output against the data, on all 22 joints as `evaluate` reports it and on each part alone:
 the legs and feet, the arms (collars to wrists), the trunk and head. A solve whose PSKL is off
 in one setting only is off somewhere in particular; this says where.
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import warnings
 
+from motiongen.checks import require_choice
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.eval.pairs import ProtocolConfig
 from motiongen.eval.protocol import evaluate, pskl_equal, reference_halves
@@ -22,8 +24,8 @@ from motiongen.sampling import SamplerSettings
 from motiongen.sampling.assemble import SOLVE_METHODS
 from motiongen.skeleton import BODY_JOINT_NAMES
 
-SPEC = {"ckpt": (str, None), "split": (str, "val"), "settings": (str, "static,dynamic"), "k": (int, 2),
-        "pairs": (int, 1), "steps": (int, 10)}
+SPEC = {"ckpt": (str, None), "split": (str, "val"), "settings": (list, ["static", "dynamic"]), "k": (int, 2),
+        "pairs": (int, 1), "steps": (int, 10), "solves": (list, list(SOLVE_METHODS))}
 PARTS = {"all": ("",), "legs and feet": ("hip", "knee", "ankle", "foot"),
          "arms": ("collar", "shoulder", "elbow", "wrist"), "trunk and head": ("pelvis", "spine", "neck", "head")}
 
@@ -35,6 +37,8 @@ def part_joints(keys: tuple[str, ...]) -> list[int]:
 
 def run(argv: list[str]) -> None:
     opts = parse_key_values(argv, SPEC, required=("ckpt",), usage=__doc__.splitlines()[2].strip())
+    for solve in opts["solves"]:
+        require_choice("solves", solve, SOLVE_METHODS)
     loaded = load_model(opts["ckpt"])
     ds = open_dataset(DataConfig(), verbose=False)
     scenes = [s for s in ds.splits[opts["split"]] if s in ds.scenes]
@@ -43,8 +47,8 @@ def run(argv: list[str]) -> None:
     print(f"{opts['ckpt']}: {opts['split']} scenes {scenes[0]}-{scenes[-1]}, k={opts['k']}, {opts['pairs']} pair(s) "
           f"per scene, DDIM-{opts['steps']}; PSKL(gen,ref) / PSKL(ref,gen) in nats")
     print(f"{'':24s}" + "".join(f"{name:>20s}" for name in PARTS))
-    for setting in opts["settings"].split(","):
-        for solve in SOLVE_METHODS:
+    for setting in opts["settings"]:
+        for solve in opts["solves"]:
             cfg = ProtocolConfig(k=opts["k"], pairs=opts["pairs"], ablation_pairs=0, loop={"solve": solve})
             ev = evaluate(loaded, ds, scenes, cfg, [setting], sampler, progress=False)
             gen = [m for r in ev.results[setting] for m in r.kept]                         # (T, J, 3) each
