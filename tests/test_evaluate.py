@@ -63,6 +63,29 @@ def test_pairs_deterministic_and_valid(ctxs):
     assert [p.describe() for p in other] != [p.describe() for p in make_pairs(ctxs[92], "static", cfg, NAMES)]
 
 
+def test_dynamic_pairs_approach_their_object_straight_on(ctxs):
+    """`approach=A`: a pick-up pair's route ends walking straight at its object, from the same
+    start to the same spot; the static pairs are untouched."""
+    plain, straight = ProtocolConfig(pairs=5, seed=3), ProtocolConfig(pairs=5, seed=3, approach=1.2)
+    a, b = make_pairs(ctxs[92], "dynamic", plain, NAMES), make_pairs(ctxs[92], "dynamic", straight, NAMES)
+    turned = 0
+    for p, q in zip(a, b):
+        assert p.describe()["start"] == q.describe()["start"] and np.allclose(p.goal.xz, q.goal.xz)
+        obj = p.object_pose[[0, 2], 3]
+        np.testing.assert_allclose(q.goal.toward, obj)
+        piece = q.route.legs[0][-1] - q.route.legs[0][-2]
+        to_obj = obj - q.goal.xz
+        if q.route.legs[0].shape == p.route.legs[0].shape and np.allclose(q.route.legs[0], p.route.legs[0]):
+            continue                                                           # no open floor behind the spot
+        turned += 1
+        assert np.dot(piece, to_obj) / np.linalg.norm(piece) / np.linalg.norm(to_obj) > 0.999
+        assert np.linalg.norm(piece) >= 0.4 - 1e-9
+        assert all(ctxs[92].fmap.segment_free(x, y) for x, y in zip(q.route.path[:-1], q.route.path[1:]))
+    assert turned >= 3
+    assert [p.describe() for p in make_pairs(ctxs[91], "static", plain, NAMES)] == \
+        [p.describe() for p in make_pairs(ctxs[91], "static", straight, NAMES)]
+
+
 def test_reference_row_is_sane(ctxs):
     cfg = ProtocolConfig()
     st = reference_metrics(ctxs[91], "static", cfg, 42).per_sequence

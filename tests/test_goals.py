@@ -95,6 +95,49 @@ def test_route_legs_and_subgoals_end_at_goals():
     assert len(straight.legs[0]) == 2
 
 
+def _straight_piece(leg: np.ndarray) -> tuple[float, np.ndarray]:
+    """The length and unit direction of a leg's last piece (N, 2)."""
+    d = leg[-1] - leg[-2]
+    return float(np.linalg.norm(d)), d / np.linalg.norm(d)
+
+
+def test_approach_walks_straight_at_the_object_for_its_last_metres():
+    fmap = walkable_map(_room(wall=False), body_radius=0.2)
+    cup = np.array([-1.0, 0.4])                            # the object, north of the goal
+    goal = Goal([-1.0, 0.0], "pick up", 2.0, toward=cup)
+    plain = plan_route([1.5, -1.5], [goal], fmap)
+    r = plan_route([1.5, -1.5], [goal], fmap, approach=1.2)
+    leg = r.legs[0]
+    np.testing.assert_allclose(leg[-1], goal.xz)
+    length, u = _straight_piece(leg)
+    assert length == pytest.approx(1.2, abs=1e-9)
+    np.testing.assert_allclose(u, (cup - goal.xz) / np.linalg.norm(cup - goal.xz), atol=1e-9)   # at the object
+    assert fmap.is_free(_dense_points(leg)).all()
+    assert not np.allclose(_straight_piece(plain.legs[0])[1], u, atol=0.05)                    # the shortest path came from the side
+    np.testing.assert_allclose(r.subgoals[-1], goal.xz)
+    # No object, no approach length, or a start nearer than the straight piece: the plain route.
+    for g, a, start in ((Goal(goal.xz, "pick up", 2.0), 1.2, [1.5, -1.5]), (goal, 0.0, [1.5, -1.5]),
+                        (goal, 1.2, [-0.75, -0.25])):
+        np.testing.assert_allclose(plan_route(start, [g], fmap, approach=a).legs[0],
+                                   plan_route(start, [Goal(g.xz, "pick up", 2.0)], fmap).legs[0])
+
+
+def test_approach_falls_back_to_a_shorter_piece_where_the_floor_is_blocked():
+    occ = np.zeros((200, 100, 200), bool)
+    occ[0:100, 0:90, 62:68] = True                         # a wall across z in [-0.76, -0.64) for x < 0
+    fmap = walkable_map(OccupancyGrid.from_dense(occ, [-2.0, 0.0, -2.0], 0.02), body_radius=0.2)
+    goal = Goal([-1.0, 0.0], "pick up", 2.0, toward=[-1.0, 0.4])
+    leg = plan_route([1.5, -1.5], [goal], fmap, approach=1.2).legs[0]
+    length, u = _straight_piece(leg)
+    assert length == pytest.approx(0.4, abs=1e-9)          # 1.2, 0.9 and 0.6 m cross the wall or its clearance
+    np.testing.assert_allclose(u, [0.0, 1.0], atol=1e-9)
+    assert fmap.is_free(_dense_points(leg)).all()
+    occ[0:100, 0:90, 85:95] = True                         # and now right behind the goal too: no straight piece
+    fmap = walkable_map(OccupancyGrid.from_dense(occ, [-2.0, 0.0, -2.0], 0.02), body_radius=0.2)
+    np.testing.assert_allclose(plan_route([1.5, -1.5], [goal], fmap, approach=1.2).legs[0],
+                               plan_route([1.5, -1.5], [Goal(goal.xz, "pick up", 2.0)], fmap).legs[0])
+
+
 def test_parse_goals_and_files(tmp_path):
     g = parse_goals([[1, 2], [3, 4]], ["walk", "sit"])
     assert g[0].action is None and g[1].action == "sit" and g[1].duration == 3.0

@@ -4,7 +4,7 @@ known answers: a voxelised cup on a table, a book near it or far away, a seat un
 import numpy as np
 import pytest
 
-from motiongen.sampling.interactions import hand_goals, hand_reach, hand_targets, seat_height, seat_shift
+from motiongen.sampling.interactions import hand_goals, hand_reach, hand_targets, object_toward, seat_height, seat_shift
 from motiongen.scene.occupancy import OccupancyGrid
 from motiongen.skeleton import FOOT_JOINTS, HAND_JOINTS, PELVIS
 from tests.helpers import REST
@@ -152,6 +152,16 @@ def seat_scene():
     occ = np.zeros((100, 50, 100), bool)
     occ[50:75, 0:23, 50:75] = True
     return OccupancyGrid.from_dense(occ, [0.0, 0.0, 0.0], 0.02)
+
+
+def test_the_object_a_hand_goal_is_done_to_is_the_nearest_within_reach():
+    """`object_toward`: the x, z centre of the object nearest the goal, within reach."""
+    near, far = (cup(), CUP_POSE), (book(), pose([3.0, 0.0, 3.0]))
+    goal = TABLE[[0, 2]] + [0.0, -0.45]                      # standing 0.45 m from the cup's axis
+    np.testing.assert_allclose(object_toward(goal, [far, near]), TABLE[[0, 2]], atol=VOX)     # the cup's axis
+    np.testing.assert_allclose(object_toward([3.0, 2.6], [far, near]), [3.075, 3.1], atol=VOX)   # the book's middle
+    assert object_toward(goal + [0.0, -1.0], [far, near]) is None                            # 1.4 m away: out of reach
+    assert object_toward(goal, []) is None
 
 
 def test_seat_height_is_the_top_of_the_seat_and_nan_over_bare_floor():

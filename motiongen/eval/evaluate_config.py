@@ -108,6 +108,7 @@ def check_protocol_keys(p: ProtocolConfig) -> None:
     r("min_distance", p.min_distance, 0, 1000)
     r("body_radius", p.body_radius, 0, 2)
     r("subgoal_spacing", p.subgoal_spacing, 0.05, 100)
+    r("approach", p.approach, 0, 100)
     r("max_episodes", p.max_episodes, 1, 100000, integer=True)
     r("seed", p.seed, 0, integer=True)
     r("pskl_frames", p.pskl_frames, 2, 100000, integer=True)

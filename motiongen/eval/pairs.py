@@ -32,6 +32,9 @@ class ProtocolConfig:
     min_distance: float = 2.0           # start-end straight-line distance (m), halved if the room is too small
     body_radius: float = 0.25
     subgoal_spacing: float = 0.6
+    # Metres of straight walk onto a pick-up spot, along the line from its object (`goals.approach_leg`;
+    # 0: the shortest path's own last leg).
+    approach: float = 0.0
     max_episodes: int = 24              # per pair; a sample that has not arrived by then counts as a miss
     seed: int = 0
     pskl_frames: int = 60               # PSKL chunk length (frames at 30 fps = 2 s)
@@ -77,7 +80,7 @@ def pair_seed(seed: int, setting: str, scene: int, index: int) -> int:
 
 def _try_route(ctx: SceneContext, start, goal: Goal, cfg: ProtocolConfig) -> Route | None:
     try:
-        return plan_route(start, [goal], ctx.fmap, "astar", cfg.subgoal_spacing)
+        return plan_route(start, [goal], ctx.fmap, "astar", cfg.subgoal_spacing, approach=cfg.approach)
     except ConfigError:
         return None
 
@@ -125,7 +128,9 @@ def make_pairs(ctx: SceneContext, setting: str, cfg: ProtocolConfig, action_name
                 # Held as long as the data holds it there, so model and data are compared on
                 # like segments (sit: 1.8-8.7 s in the test scenes, lie down: 10 s).
                 secs = cfg.action_seconds if cfg.action_seconds is not None else min(spot.duration, MAX_ACTION_SECONDS)
-                goal = Goal(spot.xz, spot.action, secs)
+                # A pick-up is done to its object; a seat's spot is turned away from, not walked at.
+                toward = spot.object_pose[[0, 2], 3] if setting == "dynamic" and spot.object_pose is not None else None
+                goal = Goal(spot.xz, spot.action, secs, toward)
             else:
                 goal = Goal(_random_free(ctx, rng))
             if np.linalg.norm(goal.xz - start) < min_d:

@@ -39,9 +39,14 @@ class Goal:
     xz: np.ndarray               # (2,) float64 world x, z
     action: str | None = None
     duration: float = 0.0
+    # (2,) x, z of what the action is done to (the object a pick-up takes), or None: a route with
+    # `approach` comes onto the goal walking straight at it (`plan_route`).
+    toward: np.ndarray | None = None
 
     def __post_init__(self):
         self.xz = np.asarray(self.xz, np.float64).reshape(2)
+        if self.toward is not None:
+            self.toward = np.asarray(self.toward, np.float64).reshape(2)
         if self.action is not None and str(self.action).strip().lower() in WALK_NAMES:
             self.action = None
         self.duration = float(self.duration)
@@ -142,10 +147,12 @@ def check_point(fmap: WalkableMap | None, xz, what: str, interacts: bool = False
 
 
 def plan_route(start, goals: Sequence[Goal], fmap: WalkableMap | None = None, mode: str = "astar",
-               spacing: float = 0.6, plan_cell: float = 0.05) -> Route:
+               spacing: float = 0.6, plan_cell: float = 0.05, approach: float = 0.0) -> Route:
     """Route from `start` (2,) through `goals`: shortest collision-free legs on `fmap`
     (mode="astar": Dijkstra on the grid, the paths A* finds) or straight lines (mode="straight",
-    or no map), with subgoals every `spacing` metres.
+    or no map), with subgoals every `spacing` metres. approach > 0 (metres): a goal with a
+    `toward` point is come onto walking straight at that point for its last `approach` metres
+    (`approach_leg`), where the floor allows.
     Raises ConfigError for points outside the map, inside obstacles, or unreachable."""
     if mode not in ("astar", "straight"):
         raise ConfigError(f"path: expected 'astar' or 'straight', got {mode!r}")
@@ -157,21 +164,58 @@ def plan_route(start, goals: Sequence[Goal], fmap: WalkableMap | None = None, mo
     for g, goal in enumerate(goals):
         what = f"goal {g + 1}"
         target = check_point(fmap, goal.xz, what, goal.interacts)
-        if mode == "straight" or fmap is None:
-            leg = np.stack([cur, goal.xz])
-        else:
-            leg = plan_path(fmap, cur, target, plan_cell)
-            if leg is None:
-                raise ConfigError(f"no collision-free path from {_fmt(cur)} to {what} at {_fmt(goal.xz)} "
-                                  f"(body_radius={fmap.body_radius} m)")
-            if not np.allclose(target, goal.xz):
-                leg = np.concatenate([leg, goal.xz[None]])                                   # onto the furniture
+        leg = _leg(fmap, cur, goal, target, what, mode, plan_cell, approach)
         sg = place_subgoals(leg, spacing)
         legs.append(leg)
         subgoals.append(sg)
         owner.append(np.full(len(sg), g, np.int64))
         cur = goal.xz
     return Route(start, list(goals), legs, np.concatenate(subgoals), np.concatenate(owner), mode)
+
+
+def _leg(fmap: WalkableMap | None, cur: np.ndarray, goal: Goal, target: np.ndarray, what: str, mode: str,
+         plan_cell: float, approach: float) -> np.ndarray:
+    """`plan_route`'s polyline (N, 2) from cur to `goal`, planned to `target` (its walkable
+    point, `check_point`)."""
+    if mode == "straight" or fmap is None:
+        return np.stack([cur, goal.xz])
+    if approach > 0 and goal.toward is not None and np.allclose(target, goal.xz):
+        leg = approach_leg(fmap, cur, goal, approach, plan_cell)
+        if leg is not None:
+            return leg
+    leg = plan_path(fmap, cur, target, plan_cell)
+    if leg is None:
+        raise ConfigError(f"no collision-free path from {_fmt(cur)} to {what} at {_fmt(goal.xz)} "
+                          f"(body_radius={fmap.body_radius} m)")
+    if not np.allclose(target, goal.xz):
+        leg = np.concatenate([leg, goal.xz[None]])                                           # onto the furniture
+    return leg
+
+
+# Shorter straight last legs tried, as fractions of `approach`, where the full one is not open floor.
+APPROACH_FRACTIONS = (1.0, 0.75, 0.5, 1 / 3)
+
+
+def approach_leg(fmap: WalkableMap, cur: np.ndarray, goal: Goal, approach: float, plan_cell: float = 0.05):
+    """A leg (N, 2) from cur onto goal.xz whose last piece is straight, at least `approach` m
+    (or the longest of APPROACH_FRACTIONS of it that is open floor) along the line from
+    goal.toward through the goal: the body comes walking at what it acts on, as people do (the
+    data's pick-ups come straight at their object) instead of arriving from the side the
+    shortest path happens to come from, with the object beside it. None where no such piece
+    is open, or where cur is no farther from the goal than the piece is long."""
+    d = goal.xz - goal.toward
+    if np.linalg.norm(d) < 1e-6:
+        return None
+    u = d / np.linalg.norm(d)
+    for f in APPROACH_FRACTIONS:
+        length = f * approach
+        p0 = goal.xz + length * u                       # where the straight piece begins
+        if np.linalg.norm(np.asarray(cur) - goal.xz) <= length or not fmap.segment_free(p0, goal.xz):
+            continue
+        leg = plan_path(fmap, cur, p0, plan_cell)
+        if leg is not None:
+            return np.concatenate([leg, goal.xz[None]])
+    return None
 
 
 def plan_scene_route(start, goals: Sequence[Goal], vocabulary: Sequence[str], scene=None, *,

@@ -82,6 +82,20 @@ def object_surfaces(objects) -> list[ObjectSurface]:
     return out
 
 
+def object_toward(xz, objects, max_dist: float = HAND_GOAL_REACH) -> np.ndarray | None:
+    """(2,) the x, z centre of the placed object [(OccupancyGrid, pose)] whose voxels come
+    nearest to the floor point xz (2,) across the floor, if within `max_dist`; else None: what
+    a hand action at xz would be done to (a goal's `toward`, `goals.approach_leg`)."""
+    best, out = max_dist, None
+    for s in object_surfaces(objects):
+        if not len(s.centres):
+            continue
+        d = float(np.min(np.linalg.norm(s.centres[:, [0, 2]] - np.asarray(xz, np.float64), axis=-1)))
+        if d <= best:
+            best, out = d, s.centres[:, [0, 2]].mean(0)
+    return out
+
+
 def object_distance(points: np.ndarray, surfaces: list[ObjectSurface]) -> np.ndarray:
     """Distance (M,) of points (M, 3) to the nearest voxel box of any object (0 inside one)."""
     centres = np.concatenate([s.centres for s in surfaces])                          # (N, 3)

@@ -31,7 +31,7 @@ from motiongen.sampling.autoregressive import run_episode
 from motiongen.sampling.conditioning import loop_hand_reach
 from motiongen.sampling.episode import EpisodeState, Tail, loop_spec
 from motiongen.sampling.goals import Goal, Route, action_index, check_actions, plan_route
-from motiongen.sampling.interactions import hand_goals
+from motiongen.sampling.interactions import hand_goals, object_toward
 from motiongen.sampling.progress import Progress, Targets, advance, goal_plan, next_targets
 from motiongen.sampling.scene_query import SceneQuery
 from motiongen.sampling.settings import LoopConfig, SamplerSettings
@@ -106,12 +106,13 @@ class LiveSampler:
     def __init__(self, loaded, scene=None, walkable: WalkableMap | None = None, objects=(), *, body_model,
                  start_xz=(0.0, 0.0), start_yaw: float = 0.0, sampler: SamplerSettings = SamplerSettings(),
                  loop: LoopConfig = LoopConfig(), generator: torch.Generator | None = None,
-                 subgoal_spacing: float = 0.6):
+                 subgoal_spacing: float = 0.6, approach: float = 0.0):
         start = np.asarray(start_xz, np.float64)
         route = Route(start, [], [], np.zeros((0, 2)), np.zeros(0, np.int64))
         self.spec = loop_spec(loaded, route, 1, loop, start_yaw, sampler, generator)
         self.loaded, self.scene, self.walkable, self.loop = loaded, scene, walkable, loop
         self.spacing, self.body_model = float(subgoal_spacing), body_model
+        self.objects, self.approach = list(objects), float(approach)     # hand actions come straight on (goals.approach_leg)
         self.query = SceneQuery(loaded, scene, objects, self.spec.device)
         self.reach = loop_hand_reach(loaded, objects, scene, loop)
         names = list(loaded.action_names)
@@ -284,8 +285,12 @@ class LiveSampler:
         if not goals:
             self.goals, self.plan, self.progress = [], None, None
             return
+        if self.approach > 0:
+            for g in goals:
+                if g.action in self.loop.hand_goal and g.toward is None:
+                    g.toward = object_toward(g.xz, self.objects)
         route = plan_route(self._route_start(), goals, self.walkable, "astar" if self.walkable else "straight",
-                           self.spacing)
+                           self.spacing, approach=self.approach)
         plan = goal_plan(route, self.loaded.action_names, self.scene, self.loop, self.spec,
                          self.loaded.mask.p_goal_y, self.walkable)
         prog = Progress.start(1, len(goals))

@@ -35,6 +35,9 @@ class SceneRouteKeys(CheckpointKeys):
     action_seconds: float = 3.0
     path: str = "astar"            # astar (collision-free, on the walkable floor map) | straight
     subgoal_spacing: float = 0.6   # metres between subgoals along the path
+    # Metres of straight walk onto a hand action's goal (loop.hand_goal: pick up) along the line from
+    # the nearest placed object within reach (`goals.approach_leg`); 0: the shortest path's own last leg.
+    approach: float = 0.0
     body_radius: float = 0.25      # clearance kept from obstacles when planning (m)
     body_height: list[float] = field(default_factory=lambda: [0.1, 1.7])   # height band (m above the floor) that must be free to walk
 
@@ -97,6 +100,7 @@ def check_scene_route_keys(keys: SceneRouteKeys) -> None:
     require_range("action_seconds", keys.action_seconds, 0, 3600)
     require_choice("path", keys.path, ("astar", "straight"))
     require_range("subgoal_spacing", keys.subgoal_spacing, 0.05, 100)
+    require_range("approach", keys.approach, 0, 100)
     require_range("body_radius", keys.body_radius, 0, 2)
     band = list(keys.body_height) if keys.body_height is not None else []
     if len(band) != 2:

@@ -29,7 +29,7 @@ def build_app(cfg: ServeConfig, log=print) -> App:
     log(f"serve: {cfg.ckpt} (step {loaded.step}, {loaded.precision} layers) in {scene.label}; warming up")
     live = LiveSampler(loaded, scene.grid, fmap, scene.objects, body_model=body_model, start_xz=start,
                        start_yaw=cfg.start_yaw or 0.0, sampler=SamplerSettings.of(cfg), loop=cfg.loop,
-                       generator=gen, subgoal_spacing=cfg.subgoal_spacing)
+                       generator=gen, subgoal_spacing=cfg.subgoal_spacing, approach=cfg.approach)
     session = LiveSession(live, fmap, lead_s=cfg.lead_s, max_pending=cfg.max_pending)
     goals = parse_goals(cfg.goals, cfg.actions, cfg.durations, cfg.action_seconds)
     if goals:
