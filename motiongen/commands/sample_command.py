@@ -39,7 +39,7 @@ from motiongen.routing import WalkableMap
 from motiongen.sampling.autoregressive import generate
 from motiongen.sampling.goal_input import load_goals_file, parse_goals
 from motiongen.sampling.goals import Goal, Route, check_actions, check_point, plan_route
-from motiongen.sampling.interactions import object_toward
+from motiongen.sampling.interactions import aim_at_objects
 from motiongen.sampling.outputs import body_figures, failure_lines, motion_arrays, summary_lines
 from motiongen.sampling.sample_config import SampleConfig
 from motiongen.sampling.scene_setup import SceneInfo, default_route_goals, default_start, scene_for_keys
@@ -130,9 +130,7 @@ def plan(cfg: SampleConfig, scene: SceneInfo, fmap: WalkableMap | None, action_n
     if start is None:
         start = default_start(fmap, goals[0].xz)
     if cfg.approach > 0:
-        for g in goals:
-            if g.action in cfg.loop.hand_goal and g.toward is None:
-                g.toward = object_toward(g.xz, scene.objects)
+        aim_at_objects(goals, scene.objects, cfg.loop.hand_actions)
     route = plan_route(start, goals, fmap if cfg.path == "astar" else None, cfg.path, cfg.subgoal_spacing,
                        approach=cfg.approach)
     if cfg.path == "straight" and fmap is not None:

@@ -77,9 +77,16 @@ def object_surfaces(objects) -> list[ObjectSurface]:
         # midpoint or corner, so a wrist `palm` out along the normal is `palm` from this voxel.
         skin = grid.origin + (ijk + 0.5) * grid.voxel_size + h * d                    # (M, 3) local
         normals = d / np.linalg.norm(d, axis=-1, keepdims=True)                       # (M, 3) local
-        centres = grid.origin + (np.argwhere(occ) + 0.5) * grid.voxel_size            # (N, 3) local
-        out.append(ObjectSurface(skin @ rot.T + shift, normals @ rot.T, centres @ rot.T + shift, rot, h))
+        out.append(ObjectSurface(skin @ rot.T + shift, normals @ rot.T, object_centres(grid, pose, occ), rot, h))
     return out
+
+
+def object_centres(grid, pose, occ: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) world centres of a placed object's occupied voxels: its grid (OccupancyGrid) at
+    `pose` (4, 4); occ: the grid's dense occupancy where the caller has it already."""
+    pose = np.asarray(pose, np.float64)
+    occ = np.asarray(grid.dense(), bool) if occ is None else occ
+    return (grid.origin + (np.argwhere(occ) + 0.5) * grid.voxel_size) @ pose[:3, :3].T + pose[:3, 3]
 
 
 def object_toward(xz, objects, max_dist: float = HAND_GOAL_REACH) -> np.ndarray | None:
@@ -87,13 +94,23 @@ def object_toward(xz, objects, max_dist: float = HAND_GOAL_REACH) -> np.ndarray 
     nearest to the floor point xz (2,) across the floor, if within `max_dist`; else None: what
     a hand action at xz would be done to (a goal's `toward`, `goals.approach_leg`)."""
     best, out = max_dist, None
-    for s in object_surfaces(objects):
-        if not len(s.centres):
+    for grid, pose in objects:
+        floor = object_centres(grid, pose)[:, [0, 2]]                                # (N, 2)
+        if not len(floor):
             continue
-        d = float(np.min(np.linalg.norm(s.centres[:, [0, 2]] - np.asarray(xz, np.float64), axis=-1)))
+        d = float(np.min(np.linalg.norm(floor - np.asarray(xz, np.float64), axis=-1)))
         if d <= best:
-            best, out = d, s.centres[:, [0, 2]].mean(0)
+            best, out = d, floor.mean(0)
     return out
+
+
+def aim_at_objects(goals, objects, actions) -> None:
+    """Give each goal whose action is one of `actions` (done with a hand: `loop.hand_actions`)
+    and that has none the object it is done to (`object_toward`) as its `toward`, in place:
+    what `approach=` walks at (`sample`, `serve`)."""
+    for g in goals:
+        if g.action in actions and g.toward is None:
+            g.toward = object_toward(g.xz, objects)
 
 
 def object_distance(points: np.ndarray, surfaces: list[ObjectSurface]) -> np.ndarray:

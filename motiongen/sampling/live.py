@@ -31,7 +31,7 @@ from motiongen.sampling.autoregressive import run_episode
 from motiongen.sampling.conditioning import loop_hand_reach
 from motiongen.sampling.episode import EpisodeState, Tail, loop_spec
 from motiongen.sampling.goals import Goal, Route, action_index, check_actions, plan_route
-from motiongen.sampling.interactions import hand_goals, object_toward
+from motiongen.sampling.interactions import aim_at_objects, hand_goals
 from motiongen.sampling.progress import Progress, Targets, advance, goal_plan, next_targets
 from motiongen.sampling.scene_query import SceneQuery
 from motiongen.sampling.settings import LoopConfig, SamplerSettings
@@ -286,9 +286,7 @@ class LiveSampler:
             self.goals, self.plan, self.progress = [], None, None
             return
         if self.approach > 0:
-            for g in goals:
-                if g.action in self.loop.hand_goal and g.toward is None:
-                    g.toward = object_toward(g.xz, self.objects)
+            aim_at_objects(goals, self.objects, self.loop.hand_actions)
         route = plan_route(self._route_start(), goals, self.walkable, "astar" if self.walkable else "straight",
                            self.spacing, approach=self.approach)
         plan = goal_plan(route, self.loaded.action_names, self.scene, self.loop, self.spec,

@@ -35,7 +35,7 @@ class SceneRouteKeys(CheckpointKeys):
     action_seconds: float = 3.0
     path: str = "astar"            # astar (collision-free, on the walkable floor map) | straight
     subgoal_spacing: float = 0.6   # metres between subgoals along the path
-    # Metres of straight walk onto a hand action's goal (loop.hand_goal: pick up) along the line from
+    # Metres of straight walk onto a hand action's goal (loop.hand_actions: pick up) along the line from
     # the nearest placed object within reach (`goals.approach_leg`); 0: the shortest path's own last leg.
     approach: float = 0.0
     body_radius: float = 0.25      # clearance kept from obstacles when planning (m)
