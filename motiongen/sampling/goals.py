@@ -201,8 +201,9 @@ def approach_leg(fmap: WalkableMap, cur: np.ndarray, goal: Goal, approach: float
     (or the longest of APPROACH_FRACTIONS of it that is open floor) along the line from
     goal.toward through the goal: the body comes walking at what it acts on, as people do (the
     data's pick-ups come straight at their object) instead of arriving from the side the
-    shortest path happens to come from, with the object beside it. None where no such piece
-    is open, or where cur is no farther from the goal than the piece is long."""
+    shortest path happens to come from, with the object beside it. A fraction is skipped where
+    its piece is blocked or cur is no farther from the goal than the piece is long; None where
+    every one is."""
     d = goal.xz - goal.toward
     if np.linalg.norm(d) < 1e-6:
         return None
