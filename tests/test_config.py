@@ -98,6 +98,7 @@ def test_bad_values_are_config_errors_naming_the_key():
     from motiongen.eval.evaluate_config import loop_overrides
 
     assert loop_overrides({"project": "false", "smooth": 2}) == {"project": False, "smooth": 2.0}
+    assert loop_overrides({"hand_goal_on_arrival": "false"}) == {"hand_goal_on_arrival": False}
     for values, message in (({"smooth": -1}, "loop.smooth: expected a number >= 0, got -1"),
                             ({"foot_lock": "maybe"}, "loop.foot_lock: expected true or false, got 'maybe'"),
                             ({"foot_height": "floor"}, "loop.foot_height: expected one of network, body, free, got 'floor'"),

@@ -334,34 +334,55 @@ def test_clean_up_variants_equal_runs_with_that_clean_up():
         _generate(loaded, goals, loop=loop, cleanups={"x": dataclasses.replace(loop, seam_blend=0.0)}, **kw)
 
 
+def _pick_up_a_cup(p_hand, **loop_kw):
+    """The oracle walks from (0, 0) to pick up a cup (r 4 cm, 10 cm tall) beside its goal (0, 2),
+    under the left wrist of a T-pose facing +z, with no body (loop.project=false: the network's
+    own joints are what is checked, and a solve would only cost time). Returns (the motion, the
+    cup's voxel centres (N, 3))."""
+    n = 8                                                                                # 1 cm voxels
+    ii, kk = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    cup_occ = np.repeat((((ii - 3.5) ** 2 + (kk - 3.5) ** 2) <= 3.5 ** 2)[:, None, :], 10, 1)
+    cup = OccupancyGrid.from_dense(cup_occ, [-0.04, 0.0, -0.04], 0.01)
+    cup_pose = np.eye(4)
+    cup_pose[:3, 3] = [0.7, 0.9, 2.0]
+    cup_pts = (np.argwhere(cup_occ) + 0.5) * 0.01 + cup.origin + cup_pose[:3, 3]         # (N, 3)
+    loaded = _loaded(predict_goal=True)
+    loaded.action_names = ["walk", "sit", "pick up"]
+    loaded.mask = MaskConfig(max_transition=2, p_hand=p_hand, hand_joints=HAND_JOINTS)
+    m = _generate(loaded, [Goal([0.0, 2.0], "pick up", 3.0)], objects=[(cup, cup_pose)],
+                  generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 2),
+                  loop=LoopConfig(stall_s=None, project=False, **loop_kw))
+    assert m.completed, m.goal_outcome
+    return m, cup_pts
+
+
+def _wrist_to_cup(m, cup_pts, kind) -> np.ndarray:
+    """(A,) the left wrist's distance to the cup at the last frame of each episode of `kind`."""
+    ends = np.stack([e.raw[0, -1] for e in m.episodes if e.kind == kind])                # (A, J, 3)
+    return np.linalg.norm(ends[:, HAND_JOINTS[0], None] - cup_pts[None], axis=-1).min(-1)
+
+
 def test_pick_up_episodes_give_the_network_the_hand_goal_it_was_trained_on():
     """A checkpoint trained with hand goals (mask.p_hand > 0, either wrist) is told, in each
     pick-up episode, where the nearer wrist goes: a point `palm` out from the cup's surface, at
     the window's last frame. The oracle predicts what it is given there, so the network's own
     wrist ends each pick-up episode 3 cm off the cup; without the goal (loop.hand_goal=() or a
-    checkpoint trained without hand goals) it stays where the T-pose holds it. No body
-    (loop.project=false): the network's own joints are what is checked, and a solve would only
-    cost time."""
-    n = 8                                                                                # cup: r 4 cm, 10 cm tall, 1 cm voxels
-    ii, kk = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
-    cup_occ = np.repeat((((ii - 3.5) ** 2 + (kk - 3.5) ** 2) <= 3.5 ** 2)[:, None, :], 10, 1)
-    cup = OccupancyGrid.from_dense(cup_occ, [-0.04, 0.0, -0.04], 0.01)
-    cup_pose = np.eye(4)
-    cup_pose[:3, 3] = [0.7, 0.9, 2.0]                     # beside the goal, under the left wrist of a T-pose facing +z
-    cup_pts = (np.argwhere(cup_occ) + 0.5) * 0.01 + cup.origin + cup_pose[:3, 3]         # (N, 3) voxel centres
-    goals = [Goal([0.0, 2.0], "pick up", 3.0)]
-
-    def run(p_hand, hand_goal=("pick up",)):
-        loaded = _loaded(predict_goal=True)
-        loaded.action_names = ["walk", "sit", "pick up"]
-        loaded.mask = MaskConfig(max_transition=2, p_hand=p_hand, hand_joints=HAND_JOINTS)
-        m = _generate(loaded, goals, objects=[(cup, cup_pose)], generator=torch.Generator().manual_seed(0),
-                      sampler=SamplerSettings("ddim", 2), loop=LoopConfig(stall_s=None, hand_goal=hand_goal, project=False))
-        assert m.completed, m.goal_outcome
-        ends = np.stack([e.raw[0, -1] for e in m.episodes if e.kind == "act"])           # (A, J, 3)
-        return np.linalg.norm(ends[:, HAND_JOINTS[0], None] - cup_pts[None], axis=-1).min(-1)   # (A,)
-
-    given = run(0.5)
+    checkpoint trained without hand goals) it stays where the T-pose holds it."""
+    given = _wrist_to_cup(*_pick_up_a_cup(0.5), "act")
     assert len(given) >= 2 and np.all((given > 0.03) & (given < 0.03 + 0.01)), given   # 3 cm off the skin (voxel centres +0.5 cm)
-    for off in (run(0.5, ()), run(0.0)):
+    for m, cup_pts in (_pick_up_a_cup(0.5, hand_goal=()), _pick_up_a_cup(0.0)):
+        off = _wrist_to_cup(m, cup_pts, "act")
         assert np.all(off > 0.3), off
+
+
+def test_the_episode_that_arrives_at_a_pick_up_is_given_its_hand_goal():
+    """`loop.hand_goal_on_arrival`: the walk episode that ends on the pick-up's spot gets the
+    pick-up's hand goal, so the body arrives with its wrist at the cup (the oracle's wrist 3 cm
+    off it at that episode's last frame); switched off, the wrist arrives where the T-pose holds
+    it, 0.39 m from the cup. Earlier walk episodes, whose target is short of the spot, get none."""
+    m, cup_pts = _pick_up_a_cup(0.5)
+    walks = _wrist_to_cup(m, cup_pts, "walk")
+    assert len(walks) >= 2, walks
+    assert 0.03 < walks[-1] < 0.04 and np.all(walks[:-1] > 0.3), walks
+    m, cup_pts = _pick_up_a_cup(0.5, hand_goal_on_arrival=False)
+    assert np.all(_wrist_to_cup(m, cup_pts, "walk") > 0.3)

@@ -47,6 +47,7 @@ class LoopOverrides:
     swing_clearance: bool | None = None  # false: the final solve may pull a swinging foot below its predicted height
     swing_lift: bool | None = None  # false: a swing stays as low as the network drew it (no data-height arc)
     seat_shift: bool | None = None  # false: seated bodies are not moved onto their seats
+    hand_goal_on_arrival: bool | None = None  # false: only the pick-up's own episodes get the hand goal
 
 
 @dataclass

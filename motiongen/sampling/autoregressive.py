@@ -152,7 +152,7 @@ def goal_episode(spec: LoopSpec, loaded, query: SceneQuery, body_model, state: E
     goal where the loop gives one; returns the targets."""
     targets = next_targets(progress, plan, state.pelvis_now())
     if reach is not None:
-        targets.hand, targets.hand_point = hand_goals(reach, state.tail.joints, targets.label)
+        targets.hand, targets.hand_point = hand_goals(reach, state.tail.joints, targets.hand_labels())
     run_episode(spec, loaded, query, body_model, state, targets)
     return targets
 

@@ -248,7 +248,7 @@ class LiveSampler:
     def _episode(self, t: Targets) -> np.ndarray:
         """Run one episode; keep its new model frames, extend the output. Returns them (n, J, 3)."""
         if self.reach is not None and self.state.tail is not None:
-            t.hand, t.hand_point = hand_goals(self.reach, self.state.tail.joints, t.label)
+            t.hand, t.hand_point = hand_goals(self.reach, self.state.tail.joints, t.hand_labels())
         run_episode(self.spec, self.loaded, self.query, self.body_model, self.state, t, between=self._stop_if_cancelled)
         st = self.state
         new = st.frames[-1][0]

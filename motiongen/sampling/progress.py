@@ -49,6 +49,7 @@ class GoalPlan:
     walkable: WalkableMap | None   # look-ahead targets must be in line of sight on it
     model_fps: float               # frames per second of the kept frames
     stall_s: float                 # seconds of motion without progress after which a sample stalls (inf: never)
+    reach_on_arrival: bool = False  # the episode walking onto a goal's spot gets that goal's hand goal (`LoopConfig.hand_goal_on_arrival`)
 
     @property
     def final_label(self) -> int:
@@ -73,7 +74,7 @@ def goal_plan(route: Route, names, scene, loop: LoopConfig, spec: LoopSpec, p_go
     return GoalPlan(goals, names, route.subgoals, leg_last, np.stack([g.xz for g in goals]),
                     tuple(action_index(names, g.action) for g in goals), act_eps, seat_y, walk,
                     idle if idle >= 0 else walk, spec.reach, loop.lookahead, loop.tolerance, walkable,
-                    spec.model_fps, stall_s)
+                    spec.model_fps, stall_s, loop.hand_goal_on_arrival)
 
 
 @dataclass
@@ -117,6 +118,11 @@ class Targets:
     height: np.ndarray | None = None   # (S,) pelvis height at the target where finite
     hand: np.ndarray | None = None     # (S,) wrist joint given a goal at the window's last frame, -1 = none
     hand_point: np.ndarray | None = None   # (S, 3) world position of that wrist goal
+    hand_label: np.ndarray | None = None   # (S,) int the action whose hand goal each sample gets; None: `label`
+
+    def hand_labels(self) -> np.ndarray:
+        """(S,) the action each sample's hand goal is for (`interactions.hand_goals`)."""
+        return self.label if self.hand_label is None else self.hand_label
 
     @classmethod
     def stand(cls, xz, label: int, S: int) -> "Targets":
@@ -129,6 +135,7 @@ def next_targets(p: Progress, plan: GoalPlan, pos: np.ndarray) -> Targets:
     S, G = len(p.leg), len(plan.goals)
     target, label = np.empty((S, 2)), np.empty(S, np.int64)
     chosen, height = np.full(S, -1, np.int64), np.full(S, np.nan)
+    hand_label = np.full(S, -1, np.int64)          # an arriving walker's goal action, -1: its own label
     kinds = []
     for s in range(S):
         g = min(p.leg[s], G - 1)
@@ -144,10 +151,12 @@ def next_targets(p: Progress, plan: GoalPlan, pos: np.ndarray) -> Targets:
         else:
             chosen[s] = j = _farthest_visible(plan, p.ptr[s], g, pos[s])
             target[s], label[s] = plan.subgoals[j], plan.walk_label
+            if plan.reach_on_arrival and j == plan.leg_last[g] and plan.goals[g].interacts:
+                hand_label[s] = plan.goal_labels[g]
             kinds.append("walk")
     # The majority; a tie goes to the busier kind (act, walk, idle), never to set order (hash-seeded).
     kind = max((k for k in ("act", "walk", "idle") if k in kinds), key=kinds.count)
-    return Targets(kind, target, label, chosen, height)
+    return Targets(kind, target, label, chosen, height, hand_label=np.where(hand_label >= 0, hand_label, label))
 
 
 def _farthest_visible(plan: GoalPlan, j, g: int, pos: np.ndarray):

@@ -128,6 +128,11 @@ class LoopConfig:
     # (the hand goal the checkpoint was trained on with mask.p_hand > 0; others ignore it).
     # The network reaches for the object itself; () = no hand goal.
     hand_goal: tuple[str, ...] = ("pick up",)
+    # The episode that walks onto the spot of such an action (its last subgoal) gets the same
+    # hand goal: the body arrives with its wrist at the object, turned to it. Without it the
+    # body arrives with the object beside it, does not turn on the spot, and its wrist stops
+    # 0.1-0.3 m short (docs/results.md, "The hand goal on arrival").
+    hand_goal_on_arrival: bool = True
     # Actions done on a surface (a seat, a bed): while acting, the goal also gives the pelvis
     # height, `seat_offset` m above the top of the furniture under the goal (the pelvis joint of
     # a seated SMPL-X body; the synthetic data's median is 0.095). Needs a checkpoint trained
