@@ -131,7 +131,8 @@ class LoopConfig:
     # The episode that walks onto the spot of such an action (its last subgoal) gets the same
     # hand goal: the network plans its arrival with the wrist ending at the object. Without it
     # the body arrives with the object 0.2-0.3 m to its side, does not turn on the spot, and its
-    # own hand touches the object a third as often (docs/results.md, "The hand goal on arrival").
+    # own hand is on the object on a third as many pick-up frames (docs/results.md, "The hand
+    # goal on arrival").
     hand_goal_on_arrival: bool = True
     # Actions done on a surface (a seat, a bed): while acting, the goal also gives the pelvis
     # height, `seat_offset` m above the top of the furniture under the goal (the pelvis joint of
