@@ -49,7 +49,7 @@ class GoalPlan:
     walkable: WalkableMap | None   # look-ahead targets must be in line of sight on it
     model_fps: float               # frames per second of the kept frames
     stall_s: float                 # seconds of motion without progress after which a sample stalls (inf: never)
-    reach_on_arrival: bool = False  # the episode walking onto a goal's spot gets that goal's hand goal (`LoopConfig.hand_goal_on_arrival`)
+    hand_goal_on_arrival: bool = False  # the episode walking onto a goal's spot gets that goal's hand goal (LoopConfig's)
 
     @property
     def final_label(self) -> int:
@@ -151,8 +151,8 @@ def next_targets(p: Progress, plan: GoalPlan, pos: np.ndarray) -> Targets:
         else:
             chosen[s] = j = _farthest_visible(plan, p.ptr[s], g, pos[s])
             target[s], label[s] = plan.subgoals[j], plan.walk_label
-            if plan.reach_on_arrival and j == plan.leg_last[g] and plan.goals[g].interacts:
-                hand_label[s] = plan.goal_labels[g]
+            if plan.hand_goal_on_arrival and j == plan.leg_last[g]:
+                hand_label[s] = plan.goal_labels[g]                 # -1 for a goal without an action
             kinds.append("walk")
     # The majority; a tie goes to the busier kind (act, walk, idle), never to set order (hash-seeded).
     kind = max((k for k in ("act", "walk", "idle") if k in kinds), key=kinds.count)
