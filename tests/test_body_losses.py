@@ -148,3 +148,29 @@ def test_ramp_scales_both_weights_by_the_training_step():
     assert seen == [(0.0, 0.0), (0.0, 0.0), (0.5, 0.125), (1.0, 0.25), (1.5, 0.375), (2.0, 0.5), (2.0, 0.5)]
     body = BodyLosses(LAYOUT, STATS, BODY.parents, FPS, 2.0, 0.5, None, start=0, ramp=0)
     assert body.scale() == 1.0
+
+
+def test_foot_height_is_how_far_the_feet_are_in_height():
+    """Every foot joint 4 cm lower than the data's: 0.04 m, whether planted or swinging; one
+    ankle 8 cm higher: 0.02 m (a mean over the four foot joints); the feet moved sideways or the
+    whole body turned: 0, the term sees heights only. Built by the trainer from its key alone."""
+    rest = np.repeat(REST[None].astype(np.float64), L, 0)                             # (L, 22, 3)
+    planted = np.ones((L, 4), bool)
+    x0, free = window(rest, planted), torch.ones_like(window(rest, planted))
+    feet = BodyLosses(LAYOUT, STATS, BODY.parents, FPS, 0.0, 0.0, w_foot_height=2.0)
+    low = rest.copy()
+    low[:, list(FOOT_JOINTS), 1] -= 0.04
+    assert feet(window(low, ~planted), x0, free, T0)["foot_height"][1].item() == pytest.approx(0.04, rel=1e-6)
+    one = rest.copy()
+    one[:, FOOT_JOINTS[0], 1] += 0.08
+    assert feet(window(one, planted), x0, free, T0)["foot_height"][1].item() == pytest.approx(0.02, rel=1e-6)
+    aside = rest.copy()
+    aside[:, list(FOOT_JOINTS), 0] += 0.3
+    assert feet(window(aside, planted), x0, free, T0)["foot_height"][1].item() == pytest.approx(0, abs=1e-9)
+    assert feet(window(turn(rest, 1.0), planted), x0, free, T0)["foot_height"][1].item() == pytest.approx(0, abs=1e-9)
+    assert feet(window(low, planted), x0, free, T0)["foot_height"][0] == 2.0
+    data = SimpleNamespace(layout=LAYOUT, stats=STATS, cfg=SimpleNamespace(stride=1))
+    run = SimpleNamespace(tc=TrainConfig(w_foot_height=0.3), train_set=data, ds=SimpleNamespace(joint_set=BODY, fps=FPS))
+    assert list(body_losses(run)(x0, x0, free, T0)) == ["foot_height"]
+    with pytest.raises(ConfigError, match="train.w_foot_height"):
+        TrainConfig(w_foot_height=-0.1)
