@@ -1,10 +1,14 @@
-"""The speed figure's script keeps running on today's sampler: it builds its own model, outside
-`load_model`, so a field the sampler starts to read (as the swing table did) breaks it silently."""
+"""Benchmark scripts that docs/results.md's figures come from. The speed figure's script keeps
+running on today's sampler: it builds its own model, outside `load_model`, so a field the
+sampler starts to read (as the swing table did) breaks it silently. The toe-clearance script
+counts what it says on a hand-made motion."""
 
 import re
 import subprocess
 import sys
 from pathlib import Path
+
+import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -25,3 +29,24 @@ def test_sample_benchmark_prints_a_row_with_the_full_clean_up(tmp_path):
     assert float(ratio) == 1.0 and 0 < float(body) < 100
     for prec in ("fp32", "int8-encoders", "int8"):
         assert re.search(rf"ceiling at batch 1, {prec}, .*\n  at most [\d.]+x real time for 2 steps", done.stdout)
+
+
+def test_toe_clearance_counts_the_toes_that_move():
+    """A toe gliding at 1 m/s 2 cm up, the other still: only the glide counts, at 0.02 m; lifted
+    to 12 cm over its middle frames, those transitions count at the higher frame's height."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        from toe_clearance import fast_toe_heights
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    from motiongen.metrics import TOE_JOINTS
+    fps, T = 30.0, 11
+    j = np.zeros((T, 22, 3))
+    left, right = TOE_JOINTS
+    j[:, left, 0] = np.arange(T) / fps                   # 1 m/s along x
+    j[:, left, 1] = 0.02
+    j[:, right, 1] = 0.02                                # still
+    assert np.allclose(fast_toe_heights(j, fps), 0.02) and len(fast_toe_heights(j, fps)) == T - 1
+    j[4:7, left, 1] = 0.12
+    h = fast_toe_heights(j, fps)
+    assert np.allclose(np.sort(h), [0.02] * 6 + [0.12] * 4)   # transitions 3-4 ... 6-7 touch a lifted frame
