@@ -3,11 +3,14 @@ counts a toe below 5 cm moving faster than 0.5 m/s; a foot planted and sliding a
 swinging too low both count. For `sample` outputs (motion.npz; grouped by checkpoint) this
 prints, for the network's own joints (`joints_raw`) and the output (`joints`), the skating
 figure and the height of the toes on every transition where a toe moves faster than 0.5 m/s
-(the higher of its two frames; quartiles, metres), and the same for the data's sequences of
-`split` that the first file's checkpoint was trained on. A body that swings its feet as the data does clears 7-14 cm; one
-that shuffles stays under 5 cm, and its skating counts its swings.
+(the higher of its two frames; quartiles, metres), also by the pelvis's speed (over 1 s), and
+the same for the data's sequences of `split` that the first file's checkpoint was trained on.
+A body that swings its feet as the data does clears 7-14 cm; one that shuffles stays under
+5 cm, and its skating counts its swings. With `windows=N`, each checkpoint is also given N of
+the data's own windows of `split` (the first 2 frames and the last frame's pelvis x, z, as
+`network_facing.py` does; DDIM-10) and its toes are measured there beside the data's.
 
-    python benchmarks/toe_clearance.py RUN/motion.npz [RUN2/motion.npz ...] [split=val]
+    python benchmarks/toe_clearance.py RUN/motion.npz [RUN2/motion.npz ...] [split=val] [windows=0]
 """
 
 from __future__ import annotations
@@ -15,34 +18,69 @@ from __future__ import annotations
 import sys
 
 import numpy as np
+import torch
+from scipy.ndimage import uniform_filter1d
 
+from network_facing import random_windows
+
+from motiongen.diffusion import sample
+from motiongen.diffusion.masks import known_mask, replace_mask
 from motiongen.eval.evaluate_config import dataset_config
 from motiongen.importers.sources import open_dataset
 from motiongen.loading.build import load_model
 from motiongen.metrics import TOE_JOINTS, foot_skating_frames
+from motiongen.models import Condition
+from motiongen.skeleton import PELVIS
 
-FAST = 0.5     # m/s, the skating figure's speed threshold
+FAST = 0.5                                   # m/s, the skating figure's speed threshold
+SPEED_BINS = ((0.3, 0.6), (0.6, 0.9), (0.9, 1.2), (1.2, 3.0))   # m/s, the pelvis over 1 s
 
 
-def fast_toe_heights(joints: np.ndarray, fps: float) -> np.ndarray:
+def fast_toe_heights(joints: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
     """Heights (m) of the toes of joints (T, J, 3) on the transitions where they move faster
-    than FAST horizontally: the higher of the transition's two frames, one value per toe and
-    transition."""
+    than FAST horizontally (the higher of the transition's two frames, one value per toe and
+    transition), and the pelvis's horizontal speed (m/s, averaged over 1 s) at each."""
     toes = joints[:, list(TOE_JOINTS)]                                           # (T, 2, 3)
     speed = np.linalg.norm(np.diff(toes[..., [0, 2]], axis=0), axis=-1) * fps    # (T-1, 2)
     height = np.maximum(toes[:-1, :, 1], toes[1:, :, 1])                         # (T-1, 2)
-    return height[speed > FAST]
+    pelvis = np.linalg.norm(np.diff(joints[:, PELVIS, [0, 2]], axis=0), axis=-1) * fps
+    pelvis = uniform_filter1d(pelvis, max(1, round(fps)), mode="nearest")       # (T-1,)
+    fast = speed > FAST
+    return height[fast], np.repeat(pelvis[:, None], 2, 1)[fast]
 
 
 def row(name: str, motions: list[np.ndarray], fps: float) -> str:
     skate = np.concatenate([foot_skating_frames(j, fps) for j in motions]).mean()
-    q = np.percentile(np.concatenate([fast_toe_heights(j, fps) for j in motions]), [25, 50, 75])
-    return f"  {name:28s} skating {skate:.3f}, toe height when moving {q[1]:.3f} m ({q[0]:.3f} - {q[2]:.3f})"
+    h, v = (np.concatenate(x) for x in zip(*[fast_toe_heights(j, fps) for j in motions]))
+    q = np.percentile(h, [25, 50, 75])
+    bins = ", ".join(f"{lo:g}-{hi:g}: {np.median(h[(v >= lo) & (v < hi)]):.3f}" for lo, hi in SPEED_BINS
+                     if ((v >= lo) & (v < hi)).any())
+    return (f"  {name:22s} skating {skate:.3f}, toe height when moving {q[1]:.3f} m ({q[0]:.3f} - {q[2]:.3f}); "
+            f"by the pelvis's speed [m/s]: {bins}")
+
+
+def on_data_windows(ckpt: str, split: str, n: int) -> None:
+    """The network given n of the data's own windows, beside the data, at the model's rate."""
+    loaded = load_model(ckpt)
+    ds = open_dataset(dataset_config(None, loaded.config), verbose=False)
+    batch = random_windows(loaded, ds, split, n)
+    x0 = batch["motion"]                                                                       # (B, L, D)
+    B, L, D = x0.shape
+    mask = known_mask(B, L, loaded.joint_set.num_joints, 2, True, False, False, 0, channels=D)
+    x = sample(loaded.diffusion, loaded.model, x0.shape, Condition(scene=batch.get("scene"), actions=batch["actions"]),
+               known=x0, known_mask=mask, sampler="ddim", steps=10, generator=torch.Generator().manual_seed(0),
+               replace_mask=replace_mask(mask, loaded.predict_goal))
+    fps = ds.fps / loaded.window.stride
+    print(f"{ckpt} on {B} of the data's {split} windows ({fps:g} fps, the free frames):")
+    for name, m in (("the data", x0), ("the network", x)):
+        j = loaded.layout.decode(loaded.stats.denormalize(m))[0].numpy().astype(np.float64)[:, 2:]
+        print(row(name, list(j), fps))
 
 
 def main(argv: list[str]) -> None:
-    split = next((a.split("=", 1)[1] for a in argv if a.startswith("split=")), "val")
-    paths = [a for a in argv if not a.startswith("split=")]
+    keys = dict(a.split("=", 1) for a in argv if "=" in a)
+    split, windows = keys.get("split", "val"), int(keys.get("windows", 0))
+    paths = [a for a in argv if "=" not in a]
     if not paths:
         sys.exit(__doc__.splitlines()[-1].strip())
     runs: dict[str, list] = {}                 # checkpoint -> [(fps, npz), ...], in the order given
@@ -54,10 +92,12 @@ def main(argv: list[str]) -> None:
         print(f"{ckpt} ({len(outs)} outputs: {', '.join(str(d['scene']) for _, d in outs)}):")
         print(row("network", [j.astype(np.float64) for _, d in outs for j in d["joints_raw"]], fps))
         print(row("output", [j.astype(np.float64) for _, d in outs for j in d["joints"]], fps))
-    loaded = load_model(str(np.load(paths[0])["ckpt"]))
+    loaded = load_model(next(iter(runs)))
     ds = open_dataset(dataset_config(None, loaded.config), verbose=False)
     print(f"the data ({split}, {ds.fps:g} fps):")
     print(row(f"{split} sequences", [np.asarray(j, np.float64) for _, j in ds.iter_sequences(split)], ds.fps))
+    for ckpt in runs if windows > 0 else ():
+        on_data_windows(ckpt, split, windows)
 
 
 if __name__ == "__main__":

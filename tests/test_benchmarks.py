@@ -33,7 +33,8 @@ def test_sample_benchmark_prints_a_row_with_the_full_clean_up(tmp_path):
 
 def test_toe_clearance_counts_the_toes_that_move():
     """A toe gliding at 1 m/s 2 cm up, the other still: only the glide counts, at 0.02 m; lifted
-    to 12 cm over its middle frames, those transitions count at the higher frame's height."""
+    to 12 cm over its middle frames, those transitions count at the higher frame's height. The
+    pelvis walking at 0.8 m/s is the speed each counted transition is binned by."""
     sys.path.insert(0, str(REPO / "benchmarks"))
     try:
         from toe_clearance import fast_toe_heights
@@ -46,7 +47,9 @@ def test_toe_clearance_counts_the_toes_that_move():
     j[:, left, 0] = np.arange(T) / fps                   # 1 m/s along x
     j[:, left, 1] = 0.02
     j[:, right, 1] = 0.02                                # still
-    assert np.allclose(fast_toe_heights(j, fps), 0.02) and len(fast_toe_heights(j, fps)) == T - 1
+    j[:, 0, 2] = 0.8 * np.arange(T) / fps                # the pelvis at 0.8 m/s along z
+    h, v = fast_toe_heights(j, fps)
+    assert np.allclose(h, 0.02) and len(h) == T - 1 and np.allclose(v, 0.8)
     j[4:7, left, 1] = 0.12
-    h = fast_toe_heights(j, fps)
+    h, _ = fast_toe_heights(j, fps)
     assert np.allclose(np.sort(h), [0.02] * 6 + [0.12] * 4)   # transitions 3-4 ... 6-7 touch a lifted frame
