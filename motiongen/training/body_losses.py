@@ -19,10 +19,10 @@ pinned values elsewhere), in metres, over the frames with any free entry:
   apart (15-20 cm); the vectors themselves hold both.
 * foot height: |ŷ − y| (m) of the height of each foot joint (ankles and toes, `FOOT_JOINTS`),
   mean over them and the frames. The quality-size network trained with the facing or a
-  heavier bone term shuffled: its toes stayed under 3-6 cm through the swing (the data's clear
-  10 cm and more), which the skating metric counts as feet sliding on the floor. The planted
-  feet term does not see a swing, and in the diffusion loss a few centimetres of foot height
-  are little among ranges of metres.
+  heavier bone term shuffled: its toes moved 2.5-5 cm above the floor where the data's clear
+  7-14 cm, and the skating metric counts such a swing as a foot sliding on the floor. The
+  planted-feet term does not see a swing, and in the diffusion loss a few centimetres of foot
+  height are little among ranges of metres. (Measured, with what it costs: docs/results.md.)
 
 Weighting over noise levels (`train.geometry_weighting`): `uniform`, or `signal`: each window
 weighted by ᾱ_t, the share of signal in its input. At high noise the best prediction is the
