@@ -3,6 +3,10 @@ and the body hide each other by depth, it renders in forked workers, and videos 
 out (through matplotlib and numpy) where no OpenGL context can be made."""
 
 import multiprocessing as mp
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +22,7 @@ if not gl_render.available():
     pytest.skip("no EGL context on this machine", allow_module_level=True)
 
 W, H = 200, 160
+ROOT = Path(__file__).resolve().parents[1]
 RED = (0.9, 0.1, 0.1)
 CAM = PinholeCamera(np.array([0.0, 1.5, -4.0]), np.array([0.0, 1.0, 0.0]))
 
@@ -111,6 +116,31 @@ def test_a_forked_child_renders_after_the_parent_did():
     assert np.array_equal(parent, child)
     assert np.array_equal(_SHARED.render(CAM, [_body()]), parent)                  # the parent's context still works
     _SHARED.release()
+
+
+FIRST_RUN = """
+import multiprocessing as mp
+import numpy as np
+from motiongen.export import gl_render
+from tests.test_gl_render import CAM, W, H, _body
+
+assert gl_render.available()                 # the parent's probe, as `render_video` makes it
+renderer = gl_render.PanelRenderer((W, H))
+with mp.get_context("fork").Pool(1) as pool:
+    image = pool.apply_async(renderer.render, (CAM, [_body()])).get(timeout=60)
+print("drawn", int((image[..., 0] > 150).sum()))
+"""
+
+
+def test_a_forked_child_renders_on_a_machine_whose_shader_cache_is_empty(tmp_path):
+    """The first video on a fresh machine: its child compiles every shader, which Mesa queues
+    for its cache's writer thread, absent in a forked child (it hung the main job)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MESA_SHADER_CACHE")}
+    env["MESA_SHADER_CACHE_DIR"] = str(tmp_path / "empty")
+    out = subprocess.run([sys.executable, "-c", FIRST_RUN], env=env, cwd=ROOT, capture_output=True, text=True,
+                         timeout=180)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert int(out.stdout.split()[-1]) > 100                          # the red body is in the image
 
 
 # ---- in the video ---------------------------------------------------------------------

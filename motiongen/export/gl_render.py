@@ -15,9 +15,9 @@ right and its rows v in [extent[3], extent[2]] top to bottom, so matplotlib over
 with `cam.project` line up with the image.
 
 Processes: an EGL context must not cross a fork, so the context is made lazily in the process
-that renders (`os.getpid()` remembered; a forked child makes its own) and llvmpipe is asked to
-rasterise in the calling thread (its worker threads do not exist in a forked child, which
-would wait for them forever).
+that renders (`os.getpid()` remembered; a forked child makes its own), llvmpipe is asked to
+rasterise in the calling thread and Mesa's shader cache is off (their worker threads do not
+exist in a forked child, which would wait for them forever).
 """
 
 from __future__ import annotations
@@ -126,9 +126,12 @@ def _create_context():
     # by `available` (the numpy fallback).
     import moderngl
 
-    # llvmpipe's rasteriser threads would not exist in a forked worker that inherits the EGL
-    # display, which then waits for them forever; video frames are drawn one process per core.
+    # A forked worker inherits the EGL display but none of the driver's threads, and waits for
+    # them forever: llvmpipe's rasteriser threads, and the shader cache's writer thread, which a
+    # first run on a machine (an empty cache, every shader compiled and queued for writing)
+    # uses. Video frames are drawn one process per core, so neither is needed.
     os.environ["LP_NUM_THREADS"] = "0"
+    os.environ["MESA_SHADER_CACHE_DISABLE"] = "true"
     return moderngl.create_standalone_context(backend="egl", require=330)
 
 
