@@ -44,6 +44,21 @@ def random_windows(loaded, ds, split: str, n: int) -> dict:
     return {k: torch.stack([it[k] for it in items]) for k in items[0]}
 
 
+def predict_on_windows(loaded, ds, split: str, n: int, steps: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """The data's joints and the network's on up to n windows of `split`, each (B, L, J, 3) in
+    metres, and their frame rate. The network is given what the sampler gives a walking episode:
+    the window's first 2 frames and its last-frame pelvis x, z (DDIM-`steps`, fixed noise)."""
+    batch = random_windows(loaded, ds, split, n)
+    x0 = batch["motion"]                                                                       # (B, L, D)
+    B, L, D = x0.shape
+    mask = known_mask(B, L, loaded.joint_set.num_joints, 2, True, False, False, 0, channels=D)
+    x = sample(loaded.diffusion, loaded.model, x0.shape, Condition(scene=batch.get("scene"), actions=batch["actions"]),
+               known=x0, known_mask=mask, sampler="ddim", steps=steps,
+               generator=torch.Generator().manual_seed(0), replace_mask=replace_mask(mask, loaded.predict_goal))
+    data, net = (loaded.layout.decode(loaded.stats.denormalize(m))[0].numpy().astype(np.float64) for m in (x0, x))
+    return data, net, ds.fps / loaded.window.stride
+
+
 def off_travel(joints: np.ndarray, fps: float, pair: tuple[int, int]) -> np.ndarray:
     """Facing-off-travel angles (degrees) of windows joints (N, L, J, 3), the facing taken from
     the joint pair (left, right) put where the hips are (`heading_off_travel_angles` reads the hips)."""
@@ -56,20 +71,11 @@ def run(argv: list[str]) -> None:
     opts = parse_key_values(argv, SPEC, required=("ckpt",), usage=__doc__.splitlines()[-2].strip())
     loaded = load_model(opts["ckpt"])
     ds = open_dataset(dataset_config(None, loaded.config), verbose=False)
-    batch = random_windows(loaded, ds, opts["split"], opts["windows"])
-    x0 = batch["motion"]                                                                       # (B, L, D)
-    B, L, D = x0.shape
-    mask = known_mask(B, L, loaded.joint_set.num_joints, 2, True, False, False, 0, channels=D)
-    x = sample(loaded.diffusion, loaded.model, x0.shape, Condition(scene=batch.get("scene"), actions=batch["actions"]),
-               known=x0, known_mask=mask, sampler="ddim", steps=opts["steps"],
-               generator=torch.Generator().manual_seed(0), replace_mask=replace_mask(mask, loaded.predict_goal))
-    fps = ds.fps / loaded.window.stride
-    print(f"{opts['ckpt']}: {B} {opts['split']} windows, first 2 frames and last-frame pelvis x, z given, "
+    data, net, fps = predict_on_windows(loaded, ds, opts["split"], opts["windows"], opts["steps"])
+    print(f"{opts['ckpt']}: {len(data)} {opts['split']} windows, first 2 frames and last-frame pelvis x, z given, "
           f"DDIM-{opts['steps']}")
-    rows = {}
-    for name, m in (("the data", x0), ("the network", x)):
-        j = loaded.layout.decode(loaded.stats.denormalize(m))[0].numpy().astype(np.float64)  # (B, L, J, 3)
-        rows[name] = j
+    rows = {"the data": data, "the network": net}
+    for name, j in rows.items():                                                               # (B, L, J, 3)
         width = np.linalg.norm(j[..., LEFT_HIP, :] - j[..., RIGHT_HIP, :], axis=-1)           # (B, L)
         hips, shoulders = off_travel(j, fps, (LEFT_HIP, RIGHT_HIP)), off_travel(j, fps, (LEFT_SHOULDER, RIGHT_SHOULDER))
         print(f"  {name}: walking, faces {quartiles(hips, '°')} off its direction of travel by the hips, "

@@ -18,18 +18,14 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-import torch
 from scipy.ndimage import uniform_filter1d
 
-from network_facing import random_windows
+from network_facing import predict_on_windows
 
-from motiongen.diffusion import sample
-from motiongen.diffusion.masks import known_mask, replace_mask
 from motiongen.eval.evaluate_config import dataset_config
 from motiongen.importers.sources import open_dataset
 from motiongen.loading.build import load_model
 from motiongen.metrics import TOE_JOINTS, foot_skating_frames
-from motiongen.models import Condition
 from motiongen.skeleton import PELVIS
 
 FAST = 0.5                                   # m/s, the skating figure's speed threshold
@@ -59,22 +55,12 @@ def row(name: str, motions: list[np.ndarray], fps: float) -> str:
             f"by the pelvis's speed [m/s]: {bins}")
 
 
-def on_data_windows(ckpt: str, split: str, n: int) -> None:
+def on_data_windows(loaded, ds, name: str, split: str, n: int) -> None:
     """The network given n of the data's own windows, beside the data, at the model's rate."""
-    loaded = load_model(ckpt)
-    ds = open_dataset(dataset_config(None, loaded.config), verbose=False)
-    batch = random_windows(loaded, ds, split, n)
-    x0 = batch["motion"]                                                                       # (B, L, D)
-    B, L, D = x0.shape
-    mask = known_mask(B, L, loaded.joint_set.num_joints, 2, True, False, False, 0, channels=D)
-    x = sample(loaded.diffusion, loaded.model, x0.shape, Condition(scene=batch.get("scene"), actions=batch["actions"]),
-               known=x0, known_mask=mask, sampler="ddim", steps=10, generator=torch.Generator().manual_seed(0),
-               replace_mask=replace_mask(mask, loaded.predict_goal))
-    fps = ds.fps / loaded.window.stride
-    print(f"{ckpt} on {B} of the data's {split} windows ({fps:g} fps, the free frames):")
-    for name, m in (("the data", x0), ("the network", x)):
-        j = loaded.layout.decode(loaded.stats.denormalize(m))[0].numpy().astype(np.float64)[:, 2:]
-        print(row(name, list(j), fps))
+    data, net, fps = predict_on_windows(loaded, ds, split, n, steps=10)
+    print(f"{name} on {len(data)} of the data's {split} windows ({fps:g} fps, the free frames):")
+    for label, j in (("the data", data), ("the network", net)):
+        print(row(label, list(j[:, 2:]), fps))
 
 
 def main(argv: list[str]) -> None:
@@ -96,8 +82,11 @@ def main(argv: list[str]) -> None:
     ds = open_dataset(dataset_config(None, loaded.config), verbose=False)
     print(f"the data ({split}, {ds.fps:g} fps):")
     print(row(f"{split} sequences", [np.asarray(j, np.float64) for _, j in ds.iter_sequences(split)], ds.fps))
-    for ckpt in runs if windows > 0 else ():
-        on_data_windows(ckpt, split, windows)
+    for i, ckpt in enumerate(runs if windows > 0 else ()):
+        if i:                                  # the first is loaded above, with its dataset
+            loaded = load_model(ckpt)
+            ds = open_dataset(dataset_config(None, loaded.config), verbose=False)
+        on_data_windows(loaded, ds, ckpt, split, windows)
 
 
 if __name__ == "__main__":
