@@ -1,6 +1,9 @@
 """The sample video: the body mesh at the motion's frame rate, floor contact marked, the stick
 figure still available; and the rasteriser underneath (visibility, culling, decimation)."""
 
+import multiprocessing as mp
+import os
+import time
 
 import numpy as np
 import pytest
@@ -170,9 +173,6 @@ def test_video_fps_override_and_bad_style(motion, tmp_path):
 
 
 def test_frames_drawn_by_worker_processes_arrive_in_order(monkeypatch):
-    import multiprocessing as mp
-    import os
-
     from motiongen.export import video
 
     monkeypatch.setattr(video, "FRAME_BLOCK", 4)
@@ -191,6 +191,26 @@ def test_frames_drawn_by_worker_processes_arrive_in_order(monkeypatch):
     assert len({int(f[1]) for f in out}) == 2 and os.getpid() not in {int(f[1]) for f in out}
     one = list(video._frame_stream(lambda t: np.array([t, os.getpid()]), idx, workers=1))
     assert {int(f[1]) for f in one} == {os.getpid()}
+
+
+def test_workers_that_never_answer_leave_the_frames_to_this_process(monkeypatch, capsys):
+    from motiongen.export import video
+
+    monkeypatch.setattr(video, "FRAME_BLOCK", 4)
+    monkeypatch.setattr(video, "BLOCK_TIMEOUT_S", 2.0)
+    parent, idx = os.getpid(), np.arange(16)
+
+    def draw(t):
+        if os.getpid() != parent:
+            time.sleep(120)                            # a stuck worker (terminated with the pool)
+        return np.array([t, os.getpid()])
+
+    start = time.perf_counter()
+    out = list(video._frame_stream(draw, idx, workers=2))
+    assert [int(f[0]) for f in out] == idx.tolist()
+    assert {int(f[1]) for f in out} == {parent}
+    assert time.perf_counter() - start < 30
+    assert "drawing the remaining 16 frames in this process" in capsys.readouterr().err
 
 
 def test_workers_draw_the_same_video_as_one_process(motion, tmp_path, monkeypatch):

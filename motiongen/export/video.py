@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import multiprocessing as mp
 import os
+import sys
 from pathlib import Path
 from typing import Sequence
 
@@ -40,6 +41,9 @@ from motiongen.skeleton import BODY_PARENTS
 # the same size, so no chunk is posed by two processes).
 FRAME_BLOCK = 64
 _DRAW = None     # the frame function of the render in progress, inherited by forked workers
+# A block of 64 frames takes a worker seconds (~3 s for the main job's on 2 cores); one that has
+# answered nothing in this long is stuck, not slow.
+BLOCK_TIMEOUT_S = 300.0
 
 
 def ffmpeg_available() -> bool:
@@ -137,7 +141,8 @@ def _draw_block(ts) -> list[np.ndarray]:
 
 def _frame_stream(draw, frames_idx: np.ndarray, workers: int | None):
     """draw(t) for every t of frames_idx, in order. Matplotlib draws one frame on one core, so
-    on Linux frames are drawn by forked worker processes (each inherits the figure)."""
+    on Linux frames are drawn by forked worker processes (each inherits the figure); where they
+    answer nothing for BLOCK_TIMEOUT_S, the rest is drawn in this process."""
     global _DRAW
     if workers is None:
         workers = min(4, len(os.sched_getaffinity(0))) if FORK_OK else 1
@@ -147,12 +152,27 @@ def _frame_stream(draw, frames_idx: np.ndarray, workers: int | None):
             yield draw(int(t))
         return
     _DRAW = draw
+    done = 0
     try:
         with mp.get_context("fork").Pool(min(workers, len(blocks)), initializer=one_thread) as pool:   # meshes posed with torch
-            for frames in pool.imap(_draw_block, blocks):
+            results = pool.imap(_draw_block, blocks)
+            for done in range(len(blocks)):
+                try:
+                    frames = results.next(timeout=BLOCK_TIMEOUT_S)
+                except mp.TimeoutError:
+                    # A worker that never answers (a driver waiting for a thread the fork did not
+                    # copy) must not hang the run: the rest is drawn here, slower but drawn.
+                    print(f"warning: the video's worker processes drew no frames for {BLOCK_TIMEOUT_S:g} s; "
+                          f"drawing the remaining {len(frames_idx) - done * FRAME_BLOCK} frames in this process",
+                          file=sys.stderr)
+                    break
                 yield from frames
+            else:
+                return
     finally:
         _DRAW = None
+    for t in frames_idx[done * FRAME_BLOCK:]:
+        yield draw(int(t))
 
 
 def _open_writer(path: Path, fps: float):
