@@ -8,7 +8,9 @@ the same for the data's sequences of `split` that the first file's checkpoint wa
 A body that swings its feet as the data does clears 7-14 cm; one that shuffles stays under
 5 cm, and its skating counts its swings. With `windows=N`, each checkpoint is also given N of
 the data's own windows of `split` (the first 2 frames and the last frame's pelvis x, z, as
-`network_facing.py` does; DDIM-10) and its toes are measured there beside the data's.
+`network_facing.py` does; DDIM-10) and its toes are measured there beside the data's, with how
+far its pelvis and its toes travel against the data's (a body that steps moves its feet as far
+as its pelvis); the same travel is printed for the sampler's walking episodes.
 
     python benchmarks/toe_clearance.py RUN/motion.npz [RUN2/motion.npz ...] [split=val] [windows=0]
 """
@@ -30,6 +32,7 @@ from motiongen.skeleton import PELVIS
 
 FAST = 0.5                                   # m/s, the skating figure's speed threshold
 SPEED_BINS = ((0.3, 0.6), (0.6, 0.9), (0.9, 1.2), (1.2, 3.0))   # m/s, the pelvis over 1 s
+GOAL_BINS = ((0.3, 0.6), (0.6, 0.9), (0.9, 1.2), (1.2, 1.5), (1.5, 3.0))   # m over a window
 
 
 def fast_toe_heights(joints: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
@@ -55,12 +58,46 @@ def row(name: str, motions: list[np.ndarray], fps: float) -> str:
             f"by the pelvis's speed [m/s]: {bins}")
 
 
+def travel(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Windows (N, T, J, 3) -> how far (m, over the floor) the pelvis and, on average, the two
+    toes move from the first frame to the last, each (N,). A body that steps moves its feet
+    as far as its pelvis; one whose feet stay behind does not."""
+    pelvis = np.linalg.norm(joints[:, -1, PELVIS, [0, 2]] - joints[:, 0, PELVIS, [0, 2]], axis=-1)
+    toes = joints[:, :, list(TOE_JOINTS)][..., [0, 2]]                                        # (N, T, 2, 2)
+    return pelvis, np.linalg.norm(toes[:, -1] - toes[:, 0], axis=-1).mean(-1)
+
+
 def on_data_windows(loaded, ds, name: str, split: str, n: int) -> None:
     """The network given n of the data's own windows, beside the data, at the model's rate."""
     data, net, fps = predict_on_windows(loaded, ds, split, n, steps=10)
     print(f"{name} on {len(data)} of the data's {split} windows ({fps:g} fps, the free frames):")
     for label, j in (("the data", data), ("the network", net)):
         print(row(label, list(j[:, 2:]), fps))
+    # Frame 1 (the last given) to the end; binned by how far the data's pelvis goes, which is
+    # where the network's goal is.
+    (dp, dt), (np_, nt) = travel(data[:, 1:]), travel(net[:, 1:])
+    print("  travel from the last given frame to the end [m], by the data's pelvis travel:")
+    for lo, hi in GOAL_BINS:
+        w = (dp >= lo) & (dp < hi)
+        if w.any():
+            print(f"    {lo:g}-{hi:g} m ({w.sum()} windows): the data's pelvis {dp[w].mean():.2f}, toes "
+                  f"{dt[w].mean():.2f}; the network's pelvis {np_[w].mean():.2f}, toes {nt[w].mean():.2f}")
+
+
+def episode_travel(outs: list) -> str:
+    """The network's pelvis and toe travel per walking episode of `sample` outputs (episode
+    start to the next, `joints_raw`; walking: the pelvis moves over 0.8 m)."""
+    p, t = [], []
+    for _, d in outs:
+        starts = list(d["episode_starts"]) + [d["joints_raw"].shape[1] - 1]
+        for j in d["joints_raw"].astype(np.float64):
+            for a, b in zip(starts[:-1], starts[1:]):
+                pe, to = travel(j[None, a:b + 1])
+                p.append(pe[0]), t.append(to[0])
+    p, t = np.array(p), np.array(t)
+    w = p > 0.8
+    return (f"  network, {w.sum()} walking episodes of {len(p)}: pelvis {p[w].mean():.2f} m, toes {t[w].mean():.2f} m"
+            if w.any() else f"  network: no walking episode of {len(p)}")
 
 
 def main(argv: list[str]) -> None:
@@ -78,6 +115,7 @@ def main(argv: list[str]) -> None:
         print(f"{ckpt} ({len(outs)} outputs: {', '.join(str(d['scene']) for _, d in outs)}):")
         print(row("network", [j.astype(np.float64) for _, d in outs for j in d["joints_raw"]], fps))
         print(row("output", [j.astype(np.float64) for _, d in outs for j in d["joints"]], fps))
+        print(episode_travel(outs))
     loaded = load_model(next(iter(runs)))
     ds = open_dataset(dataset_config(None, loaded.config), verbose=False)
     print(f"the data ({split}, {ds.fps:g} fps):")

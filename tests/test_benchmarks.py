@@ -53,3 +53,20 @@ def test_toe_clearance_counts_the_toes_that_move():
     j[4:7, left, 1] = 0.12
     h, _ = fast_toe_heights(j, fps)
     assert np.allclose(np.sort(h), [0.02] * 6 + [0.12] * 4)   # transitions 3-4 ... 6-7 touch a lifted frame
+
+
+def test_toe_clearance_travel_is_how_far_pelvis_and_toes_go():
+    """A pelvis that moves 1.2 m with one toe stepping 0.9 m and the other still: pelvis 1.2,
+    toes 0.45 (their mean); a window that comes back where it started travelled nothing."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        from toe_clearance import travel
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    from motiongen.metrics import TOE_JOINTS
+    j = np.zeros((2, 12, 22, 3))
+    j[0, :, 0, 2] = np.linspace(0.0, 1.2, 12)
+    j[0, 6:, TOE_JOINTS[0], 2] = 0.9
+    j[1, :, 0, 0] = np.sin(np.linspace(0.0, np.pi, 12))      # out and back along x
+    pelvis, toes = travel(j)
+    assert np.allclose(pelvis, [1.2, 0.0]) and np.allclose(toes, [0.45, 0.0])
