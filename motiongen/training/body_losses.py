@@ -9,7 +9,10 @@ pinned values elsewhere), in metres, over the frames with any free entry:
   the clean window's own lengths (the data's body, whichever body that is);
 * planted feet: the speed (m/s) of each stance joint between consecutive frames in which the
   clean window flags it planted (`Layout` stance channels), mean over such pairs. Needs stance
-  channels (`window.contact_joints`).
+  channels (`window.contact_joints`). A network unsure of the step's phase meets it by moving
+  its feet little everywhere: with it the demo network's toes travel half as far as its pelvis
+  on the data's windows, without it they glide fast and low (docs/results.md, "The demo
+  network does not step"), with or without the signal weighting below.
 * facing: |â − a| (m) between the prediction's and the clean window's across vectors (left −
   right hip, left − right shoulder, `across_vectors`), mean over frames: which way the hips and
   the shoulders face, and how far apart they are. In the diffusion loss a turn of the body is
