@@ -93,7 +93,8 @@ def episode_travel(outs: list) -> str:
         for j in d["joints_raw"].astype(np.float64):
             for a, b in zip(starts[:-1], starts[1:]):
                 pe, to = travel(j[None, a:b + 1])
-                p.append(pe[0]), t.append(to[0])
+                p.append(pe[0])
+                t.append(to[0])
     p, t = np.array(p), np.array(t)
     w = p > 0.8
     return (f"  network, {w.sum()} walking episodes of {len(p)}: pelvis {p[w].mean():.2f} m, toes {t[w].mean():.2f} m"
