@@ -141,18 +141,23 @@ def _draw_block(ts) -> list[np.ndarray]:
 
 def _frame_stream(draw, frames_idx: np.ndarray, workers: int | None):
     """draw(t) for every t of frames_idx, in order. Matplotlib draws one frame on one core, so
-    on Linux frames are drawn by forked worker processes (each inherits the figure); where they
-    answer nothing for BLOCK_TIMEOUT_S, the rest is drawn in this process."""
-    global _DRAW
+    on Linux frames are drawn by forked worker processes (each inherits the figure); what they
+    do not draw (one process, or workers that answer nothing for BLOCK_TIMEOUT_S) is drawn here."""
     if workers is None:
         workers = min(4, len(os.sched_getaffinity(0))) if FORK_OK else 1
     blocks = [frames_idx[i:i + FRAME_BLOCK] for i in range(0, len(frames_idx), FRAME_BLOCK)]
-    if workers < 2 or len(blocks) < 2 or not FORK_OK:
-        for t in frames_idx:
-            yield draw(int(t))
-        return
+    drawn = 0                                  # blocks the workers drew
+    if workers >= 2 and len(blocks) >= 2 and FORK_OK:
+        drawn = yield from _drawn_by_workers(draw, blocks, workers)
+    for t in frames_idx[drawn * FRAME_BLOCK:]:
+        yield draw(int(t))
+
+
+def _drawn_by_workers(draw, blocks: list[np.ndarray], workers: int):
+    """Yields the frames of `blocks` drawn by forked workers, in order; returns how many blocks
+    came back, all of them unless the workers stopped answering."""
+    global _DRAW
     _DRAW = draw
-    done = 0
     try:
         with mp.get_context("fork").Pool(min(workers, len(blocks)), initializer=one_thread) as pool:   # meshes posed with torch
             results = pool.imap(_draw_block, blocks)
@@ -162,17 +167,14 @@ def _frame_stream(draw, frames_idx: np.ndarray, workers: int | None):
                 except mp.TimeoutError:
                     # A worker that never answers (a driver waiting for a thread the fork did not
                     # copy) must not hang the run: the rest is drawn here, slower but drawn.
+                    left = sum(len(b) for b in blocks[done:])
                     print(f"warning: the video's worker processes drew no frames for {BLOCK_TIMEOUT_S:g} s; "
-                          f"drawing the remaining {len(frames_idx) - done * FRAME_BLOCK} frames in this process",
-                          file=sys.stderr)
-                    break
+                          f"drawing the remaining {left} frames in this process", file=sys.stderr)
+                    return done
                 yield from frames
-            else:
-                return
+        return len(blocks)
     finally:
         _DRAW = None
-    for t in frames_idx[done * FRAME_BLOCK:]:
-        yield draw(int(t))
 
 
 def _open_writer(path: Path, fps: float):
