@@ -36,6 +36,12 @@ from motiongen.skeleton import LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDE
 SPEC = {"ckpt": (str, None), "split": (str, "val"), "windows": (int, 200), "steps": (int, 10)}
 
 
+def model_and_data(ckpt: str):
+    """(the loaded checkpoint, the dataset it was trained on)."""
+    loaded = load_model(ckpt)
+    return loaded, open_dataset(dataset_config(None, loaded.config), verbose=False)
+
+
 def random_windows(loaded, ds, split: str, n: int) -> dict:
     """A batch of up to n windows of `split` (fixed draw)."""
     windows = WindowDataset(ds, split, loaded.window, loaded.stats)
@@ -69,8 +75,7 @@ def off_travel(joints: np.ndarray, fps: float, pair: tuple[int, int]) -> np.ndar
 
 def run(argv: list[str]) -> None:
     opts = parse_key_values(argv, SPEC, required=("ckpt",), usage=__doc__.splitlines()[-2].strip())
-    loaded = load_model(opts["ckpt"])
-    ds = open_dataset(dataset_config(None, loaded.config), verbose=False)
+    loaded, ds = model_and_data(opts["ckpt"])
     data, net, fps = predict_on_windows(loaded, ds, opts["split"], opts["windows"], opts["steps"])
     print(f"{opts['ckpt']}: {len(data)} {opts['split']} windows, first 2 frames and last-frame pelvis x, z given, "
           f"DDIM-{opts['steps']}")

@@ -22,11 +22,8 @@ import sys
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
-from network_facing import predict_on_windows
+from network_facing import model_and_data, predict_on_windows
 
-from motiongen.eval.evaluate_config import dataset_config
-from motiongen.importers.sources import open_dataset
-from motiongen.loading.build import load_model
 from motiongen.metrics import TOE_JOINTS, foot_skating_frames
 from motiongen.skeleton import PELVIS
 
@@ -117,15 +114,11 @@ def main(argv: list[str]) -> None:
         print(row("network", [j.astype(np.float64) for _, d in outs for j in d["joints_raw"]], fps))
         print(row("output", [j.astype(np.float64) for _, d in outs for j in d["joints"]], fps))
         print(episode_travel(outs))
-    loaded = load_model(next(iter(runs)))
-    ds = open_dataset(dataset_config(None, loaded.config), verbose=False)
+    loaded, ds = model_and_data(next(iter(runs)))
     print(f"the data ({split}, {ds.fps:g} fps):")
     print(row(f"{split} sequences", [np.asarray(j, np.float64) for _, j in ds.iter_sequences(split)], ds.fps))
     for i, ckpt in enumerate(runs if windows > 0 else ()):
-        if i:                                  # the first is loaded above, with its dataset
-            loaded = load_model(ckpt)
-            ds = open_dataset(dataset_config(None, loaded.config), verbose=False)
-        on_data_windows(loaded, ds, ckpt, split, windows)
+        on_data_windows(*((loaded, ds) if i == 0 else model_and_data(ckpt)), ckpt, split, windows)
 
 
 if __name__ == "__main__":
