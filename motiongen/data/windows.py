@@ -90,6 +90,14 @@ def window_starts(ds: MotionDataset, split: str | None, cfg: WindowConfig) -> np
     return np.concatenate(starts).astype(np.int64) if starts else np.zeros(0, np.int64)
 
 
+def sequence_starts(ds: MotionDataset, starts: np.ndarray) -> np.ndarray:
+    """(W,) int64 the first frame of the sequence each window start (W,) lies in."""
+    firsts = np.array(sorted(s.start for s in ds.sequences), np.int64)
+    if len(starts) == 0:
+        return np.zeros(0, np.int64)
+    return firsts[np.searchsorted(firsts, starts, side="right") - 1]
+
+
 def canonicalize(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Express windows (..., L, J, 3) in their first frame. Returns local joints and the
     (..., 4, 4) local -> world transforms."""
@@ -141,11 +149,18 @@ def dataset_stance(ds: MotionDataset, layout: Layout, stance_speed: float) -> np
 class WindowDataset(Dataset):
     """Windows of one split. `stats=None` computes them on the train split of the same dataset."""
 
-    def __init__(self, ds: MotionDataset, split: str | None, cfg: WindowConfig, stats: NormStats | None = None):
+    def __init__(self, ds: MotionDataset, split: str | None, cfg: WindowConfig, stats: NormStats | None = None,
+                 previous: int = 0):
+        """previous > 0: each item also carries the window that starts `previous` model frames
+        earlier in the same sequence (keys "prev_*", `has_prev` False where the sequence starts
+        too late): training on the network's own transition frames (`training/rollout.py`)."""
         if cfg.length < 2 or cfg.stride < 1 or cfg.hop < 1:
             raise ConfigError(f"window length must be >= 2 and stride, hop >= 1 (got {cfg.length}, {cfg.stride}, {cfg.hop})")
-        self.ds, self.split, self.cfg = ds, split, cfg
+        if not 0 <= previous < cfg.length:
+            raise ConfigError(f"previous window offset must be in 0..{cfg.length - 1} frames (got {previous})")
+        self.ds, self.split, self.cfg, self.previous = ds, split, cfg, previous
         self.starts = window_starts(ds, split, cfg)
+        self._seq_starts = sequence_starts(ds, self.starts)                     # (W,) the start of each one's sequence
         self.layout = Layout.for_window(cfg, ds.joint_set)
         self.stats = stats if stats is not None else compute_stats(ds, cfg)
         if len(self.stats.center) != self.layout.channels:
@@ -165,6 +180,17 @@ class WindowDataset(Dataset):
 
     def __getitem__(self, i: int) -> dict:
         frames = self.window_frames(i)                                           # (L,)
+        item = self.item_at(frames)
+        if self.previous:
+            back = frames - self.previous * self.cfg.stride
+            has = bool(back[0] >= self._seq_starts[i])
+            prev = self.item_at(back if has else frames)                           # same shapes either way
+            item.update({f"prev_{k}": prev[k] for k in ("motion", "actions", "to_world", "scene") if k in prev})
+            item["has_prev"] = torch.tensor(has)
+        return item
+
+    def item_at(self, frames: np.ndarray) -> dict:
+        """The window of source frames `frames` (L,): its features, conditions and frame."""
         joints = np.asarray(self.ds.joints[frames], np.float64)                  # (L, J, 3)
         local, T = canonicalize(joints)                                          # (L, J, 3), (4, 4)
         motion = self.stats.normalize(self.layout.encode(local, self.stance[frames]).astype(np.float32))  # (L, D)
@@ -176,13 +202,13 @@ class WindowDataset(Dataset):
             "scene_id": torch.tensor(int(self.ds.scene_id[frames[0]]), dtype=torch.long),
         }
         if self.cfg.scene:
-            item["scene"] = torch.from_numpy(self._local_scene(frames, local, T))
+            item["scene"] = torch.from_numpy(self.local_scene(frames, local[-1, PELVIS], T))
         return item
 
-    def _local_scene(self, frames: np.ndarray, local: np.ndarray, T: np.ndarray) -> np.ndarray:
-        """(Hy, Hx, Hz) float32 occupancy around the goal pelvis, axes aligned with the window
+    def local_scene(self, frames: np.ndarray, goal: np.ndarray, T: np.ndarray) -> np.ndarray:
+        """(Hy, Hx, Hz) float32 occupancy around the goal pelvis `goal` (3,) of the window of
+        source frames `frames` (L,) in its frame T (4, 4) local -> world, axes aligned with that
         frame, with the objects present at the goal frame added. Height counts from the floor."""
-        goal = local[-1, PELVIS]
         at_goal = T.copy()
         at_goal[:3, 3] = T[:3, :3] @ np.array([goal[0], 0.0, goal[2]]) + T[:3, 3]        # goal (x, 0, z) in world
         objects = self._objects_at(int(frames[-1])) if self.cfg.objects else []

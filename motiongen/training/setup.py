@@ -28,7 +28,7 @@ from motiongen.data.windows import NormStats, WindowDataset
 from motiongen.diffusion.gaussian import GaussianDiffusion
 from motiongen.errors import ConfigError
 from motiongen.importers.sources import open_dataset
-from motiongen.loading.build import build_from_config, data_config, load_weights, window_config
+from motiongen.loading.build import build_from_config, data_config, load_weights, mask_config, window_config
 from motiongen.loading.checkpoint import find_resume, load_checkpoint
 from motiongen.training import distributed as dd
 from motiongen.training.data_order import ResumableBatchSampler
@@ -196,7 +196,14 @@ def _data(cfg: DictConfig, tc: TrainConfig, info: dd.DistInfo, state: dict | Non
     if not info.is_main:
         ds = open_dataset(dcfg, verbose=False)
     stats = NormStats.from_state_dict(state["stats"]) if state else None
-    train_set = WindowDataset(ds, "train", wcfg, stats)
+    # The window the sampler's loop hands its last k frames on from starts L - k frames earlier.
+    previous = 0
+    if tc.rollout_p > 0:
+        k = mask_config(cfg).max_transition
+        if not 1 <= k < wcfg.length:
+            raise ConfigError(f"train.rollout_p needs transition frames to hand on: mask.max_transition is {k}")
+        previous = wcfg.length - k
+    train_set = WindowDataset(ds, "train", wcfg, stats, previous)
     if len(train_set) < tc.batch_size:
         raise ConfigError(f"train split has {len(train_set)} windows, fewer than train.batch_size={tc.batch_size}")
     val_set = WindowDataset(ds, "val", wcfg, train_set.stats) if tc.val_every else None

@@ -45,6 +45,13 @@ class TrainConfig:
     geometry_weighting: str = "uniform"   # uniform | signal: each window by its share of signal ᾱ_t (body_losses.py)
     geometry_start: int = 0          # the step the geometry terms start at (0 before it) ...
     geometry_ramp: int = 0           # ... and the steps over which they grow linearly to full weight
+    # Training on the network's own transition frames (training/rollout.py): from step
+    # `rollout_start`, this share of the windows with transition frames gets them from the EMA
+    # network's `rollout_steps`-step DDIM sample of the window before (as the sampler's loop
+    # hands them on), the data's continuation as the target. 0 = off.
+    rollout_p: float = 0.0
+    rollout_start: int = 0
+    rollout_steps: int = 4
     log_every: int = 50
     val_every: int = 500             # 0 disables validation
     val_batches: int = 4
@@ -65,13 +72,14 @@ class TrainConfig:
         r = require_range
         for key in ("max_steps", "batch_size", "log_every", "ckpt_every", "val_batches"):
             r(f"train.{key}", getattr(self, key), 1, integer=True)
-        for key in ("warmup_steps", "geometry_start", "geometry_ramp", "val_every", "figure_every", "keep_last", "num_workers", "threads"):
+        r("train.rollout_steps", self.rollout_steps, 1, integer=True)
+        for key in ("warmup_steps", "geometry_start", "geometry_ramp", "rollout_start", "val_every", "figure_every", "keep_last", "num_workers", "threads"):
             r(f"train.{key}", getattr(self, key), 0, integer=True)
         r("train.lr", self.lr, 0, lo_open=True)   # no ceiling: lr=1e20 is how a diverging run is reproduced
         for key in ("weight_decay", "grad_clip", "pelvis_loss_weight", "hand_goal_weight", "w_bone_length",
                     "w_planted_feet", "w_facing", "w_foot_height"):
             r(f"train.{key}", getattr(self, key), 0)
-        for key in ("min_lr_ratio", "cond_drop_scene", "cond_drop_actions"):
+        for key in ("min_lr_ratio", "cond_drop_scene", "cond_drop_actions", "rollout_p"):
             r(f"train.{key}", getattr(self, key), 0, 1)
         require_choice("train.geometry_weighting", self.geometry_weighting, ("uniform", "signal"))
         # 1 or more makes the EMA weights grow without bound (1.5 reached 4.7e22).

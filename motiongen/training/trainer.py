@@ -31,6 +31,7 @@ from motiongen.loading.checkpoint import remove_orphan_temps, save_checkpoint
 from motiongen.training import distributed as dd
 from motiongen.training.body_losses import BodyLosses
 from motiongen.training.figures import log_sample_figure
+from motiongen.training.rollout import own_transitions
 from motiongen.training.setup import Run, rng_state, set_up
 from motiongen.training.validate import validation_loss
 
@@ -130,6 +131,11 @@ def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
     known_mask = known_mask_for_batch(run.cfg, x0.shape, run.ds.joint_set.num_joints, device, gen,
                                       acting_hands(loop.mask, batch, run.train_set.layout, run.train_set.stats,
                                                    run.ds.action_names))
+    if run.tc.rollout_p > 0 and run.step >= run.tc.rollout_start:
+        x0, n_own = own_transitions(run.ema.model, run.diffusion, batch, x0, known_mask, run.train_set.previous,
+                                    run.train_set.layout, run.train_set.stats, run.cfg, run.tc.rollout_p,
+                                    run.tc.rollout_steps, gen)
+        loop.sums["own_transitions"] = loop.sums.get("own_transitions", 0) + torch.tensor(n_own / B, device=device)
     t = torch.randint(0, run.diffusion.num_timesteps, (B,), device=device, generator=gen)
     noise = torch.randn(x0.shape, device=device, generator=gen)
     if loop.body is not None:
