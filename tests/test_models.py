@@ -307,3 +307,41 @@ def test_precision_auto_is_bf16_for_paper_size_layers_on_native_bf16_only(monkey
     monkeypatch.setattr(build, "INT8_AVAILABLE", False)
     with pytest.raises(ConfigError, match="precision=int8-encoders: torch .* has no dynamic quantization"):
         build.load_model("no-such-file.pt", precision="int8-encoders")
+
+
+def test_skip_coefficients_are_the_best_linear_estimate_and_a_unit_target():
+    """EDM's preconditioning for x_t = √ᾱ x0 + √(1-ᾱ) ε, x0 ~ N(0, σ²): c_skip x_t is the
+    least-squares estimate of x0 (its residual is uncorrelated with x_t) and the network's
+    target (x0 - c_skip x_t) / c_out has unit variance, at every noise level."""
+    from motiongen.diffusion import DiffusionConfig
+    from motiongen.models.denoiser import skip_coefficients
+
+    sigma = 0.4
+    ab = GaussianDiffusion(DiffusionConfig()).alphas_cumprod
+    c = skip_coefficients(ab, sigma).double()
+    g = torch.Generator().manual_seed(0)
+    x0 = sigma * torch.randn(200_000, generator=g, dtype=torch.float64)
+    eps = torch.randn(200_000, generator=g, dtype=torch.float64)
+    for t in (0, 10, 50, 99):
+        x_t = ab[t].sqrt() * x0 + (1 - ab[t]).sqrt() * eps
+        resid = x0 - c[t, 0] * x_t
+        assert abs(float((resid * x_t).mean())) < 3e-3
+        assert abs(float((resid / c[t, 1]).std()) - 1) < 0.01
+    assert abs(float(c[0, 0]) - 1) < 1e-2 and float(c[-1, 0]) < 1e-3          # copies at no noise, not at pure noise
+
+
+def test_skip_output_is_the_input_where_the_network_says_nothing():
+    """With the output layer zeroed, the model returns c_skip(t) x_t; at t = 0 nearly x_t."""
+    from motiongen.diffusion import DiffusionConfig
+
+    ab = GaussianDiffusion(DiffusionConfig()).alphas_cumprod
+    torch.manual_seed(0)
+    model = build_model(model_config("tiny", skip_sigma_data=0.4), J, A, L, alphas_cumprod=ab).eval()
+    torch.nn.init.zeros_(model.output.weight)
+    torch.nn.init.zeros_(model.output.bias)
+    x = torch.randn(2, L, 3 * J)
+    out = model(x, torch.tensor([0, 50]), _cond(2))
+    assert torch.allclose(out, model.skip[[0, 50], 0, None, None] * x, atol=1e-6)
+    assert float(model.skip[0, 0]) > 0.99
+    with pytest.raises(ValueError, match="schedule"):
+        build_model(model_config("tiny", skip_sigma_data=0.4), J, A, L)

@@ -57,13 +57,18 @@ def build_from_config(cfg, joint_set: JointSet, action_names: list[str]):
     if mcfg.temporal_basis and dcfg.prediction != "x0":
         raise ConfigError(f"model.temporal_basis={mcfg.temporal_basis} confines the output to smooth windows, "
                           f"which only an x0 prediction is; diffusion.prediction={dcfg.prediction}")
+    if mcfg.skip_sigma_data and dcfg.prediction != "x0":
+        raise ConfigError(f"model.skip_sigma_data={mcfg.skip_sigma_data} makes the output an x0 estimate through a "
+                          f"skip; diffusion.prediction={dcfg.prediction}")
     layout = Layout.for_window(w, joint_set)
+    diffusion = GaussianDiffusion(dcfg)
     model = build_model(mcfg, num_joints=joint_set.num_joints, num_actions=len(action_names), window=w.length,
-                        scene_res=(w.grid_res[1], w.grid_res[0], w.grid_res[2]), channels=layout.channels)
+                        scene_res=(w.grid_res[1], w.grid_res[0], w.grid_res[2]), channels=layout.channels,
+                        alphas_cumprod=diffusion.alphas_cumprod)
     meta = {"joint_names": list(joint_set.names), "action_names": list(action_names),
             "model_config": OmegaConf.to_container(OmegaConf.structured(mcfg)),
             "diffusion_config": OmegaConf.to_container(OmegaConf.structured(dcfg))}
-    return model, GaussianDiffusion(dcfg), meta
+    return model, diffusion, meta
 
 
 def batch_condition(batch: dict, device, tc, generator, train: bool) -> Condition:

@@ -75,7 +75,8 @@ class TimestepEmbedder(nn.Module):
 
 class Denoiser(nn.Module):
     def __init__(self, cfg: ModelConfig, num_joints: int, num_actions: int, window: int,
-                 scene_res: tuple[int, int, int] = (32, 32, 32), channels: int | None = None):
+                 scene_res: tuple[int, int, int] = (32, 32, 32), channels: int | None = None,
+                 alphas_cumprod: Tensor | None = None):
         super().__init__()
         W = cfg.width
         self.cfg = cfg
@@ -97,6 +98,11 @@ class Denoiser(nn.Module):
         self.output = nn.Linear(W, D)
         if not 0 <= cfg.temporal_basis <= window:
             raise ValueError(f"model.temporal_basis={cfg.temporal_basis}: expected 0 (off) .. window length {window}")
+        if cfg.skip_sigma_data > 0:
+            if alphas_cumprod is None:
+                raise ValueError("model.skip_sigma_data needs the diffusion schedule (alphas_cumprod)")
+            # (T, 2) c_skip, c_out per timestep; not saved: rebuilt from the schedule
+            self.register_buffer("skip", skip_coefficients(alphas_cumprod, cfg.skip_sigma_data), persistent=False)
 
         # Null embeddings start small but non-zero so dropping a condition changes the output
         # from the first step (a zero null would make "dropped" look like "absent").
@@ -248,11 +254,26 @@ class Denoiser(nn.Module):
         h = self.drop(h)
         h = self.blocks(h if self._blocks_dtype is None else h.to(self._blocks_dtype)).to(x_t.dtype)
         out = self.output(h[:, 1:])  # (B, L, D); token 0's output is dropped
+        if self.cfg.skip_sigma_data > 0:
+            c = self.skip[t].to(out.dtype)                                         # (B, 2)
+            out = c[:, 0, None, None] * x_t + c[:, 1, None, None] * out
         if self.cfg.temporal_basis and self.cfg.temporal_basis < self.window:
             # same cut-off frequency for a shorter window: round(K L / window) vectors
             k = max(1, round(self.cfg.temporal_basis * L / self.window))
             out = torch.einsum("st,btd->bsd", lowpass_projection(L, k, out.device, out.dtype), out)
         return out
+
+
+def skip_coefficients(alphas_cumprod: Tensor, sigma_data: float) -> Tensor:
+    """(T, 2) float32 EDM's c_skip, c_out for x_t = √ᾱ x0 + √(1-ᾱ) ε and data of standard
+    deviation σ: x̂0 = c_skip x_t + c_out F is the best linear estimate of x0 from x_t plus a
+    unit-scaled correction. c_skip → 1/√ᾱ ≈ 1 at no noise, → 0 at pure noise (plain x0 there)."""
+    ab = alphas_cumprod.double()
+    s2 = sigma_data ** 2
+    denom = ab * s2 + (1 - ab)
+    c_skip = ab.sqrt() * s2 / denom
+    c_out = sigma_data * (1 - ab).sqrt() / denom.sqrt()
+    return torch.stack([c_skip, c_out], -1).float()
 
 
 @functools.lru_cache(maxsize=32)
@@ -266,8 +287,9 @@ def lowpass_projection(length: int, k: int, device, dtype) -> Tensor:
 
 
 def build_model(cfg: ModelConfig, num_joints: int, num_actions: int, window: int,
-                scene_res: tuple[int, int, int] = (32, 32, 32), channels: int | None = None) -> Denoiser:
-    return Denoiser(cfg, num_joints, num_actions, window, scene_res, channels)
+                scene_res: tuple[int, int, int] = (32, 32, 32), channels: int | None = None,
+                alphas_cumprod: Tensor | None = None) -> Denoiser:
+    return Denoiser(cfg, num_joints, num_actions, window, scene_res, channels, alphas_cumprod)
 
 
 def count_parameters(model: nn.Module) -> int:
