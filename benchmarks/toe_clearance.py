@@ -4,7 +4,10 @@ swinging too low both count. For `sample` outputs (motion.npz; grouped by checkp
 prints, for the network's own joints (`joints_raw`) and the output (`joints`), the skating
 figure and the height of the toes on every transition where a toe moves faster than 0.5 m/s
 (the higher of its two frames; quartiles, metres), also by the pelvis's speed (over 1 s), and
-the same for the data's sequences of `split` that the first file's checkpoint was trained on.
+the same for the data's sequences of `split` that the first file's checkpoint was trained on;
+the network's and the data's also at the model's rate (every n-th frame), which is where the
+data's windows below are measured: at 30 fps the resampled frames count more of a glide's
+slow start and stop as moving.
 A body that swings its feet as the data does clears 7-14 cm; one that shuffles stays under
 5 cm, and its skating counts its swings. With `windows=N`, each checkpoint is also given N of
 the data's own windows of `split` (the first 2 frames and the last frame's pelvis x, z, as
@@ -113,10 +116,18 @@ def main(argv: list[str]) -> None:
         print(f"{ckpt} ({len(outs)} outputs: {', '.join(str(d['scene']) for _, d in outs)}):")
         print(row("network", [j.astype(np.float64) for _, d in outs for j in d["joints_raw"]], fps))
         print(row("output", [j.astype(np.float64) for _, d in outs for j in d["joints"]], fps))
+        # The output's rate is a cubic resampling of the model's frames (every n-th frame is one):
+        # the data's windows are measured at the model's rate, so the loop is too.
+        n = round(fps / float(outs[0][1]["model_fps"]))
+        print(row(f"network, {fps / n:g} fps", [j[::n].astype(np.float64) for _, d in outs for j in d["joints_raw"]],
+                  fps / n))
         print(episode_travel(outs))
     loaded, ds = model_and_data(next(iter(runs)))
+    seqs = [np.asarray(j, np.float64) for _, j in ds.iter_sequences(split)]
+    n = loaded.window.stride
     print(f"the data ({split}, {ds.fps:g} fps):")
-    print(row(f"{split} sequences", [np.asarray(j, np.float64) for _, j in ds.iter_sequences(split)], ds.fps))
+    print(row(f"{split} sequences", seqs, ds.fps))
+    print(row(f"{split}, {ds.fps / n:g} fps", [j[::n] for j in seqs], ds.fps / n))
     for i, ckpt in enumerate(runs if windows > 0 else ()):
         on_data_windows(*((loaded, ds) if i == 0 else model_and_data(ckpt)), ckpt, split, windows)
 

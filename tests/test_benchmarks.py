@@ -70,3 +70,55 @@ def test_toe_clearance_travel_is_how_far_pelvis_and_toes_go():
     j[1, :, 0, 0] = np.sin(np.linspace(0.0, np.pi, 12))      # out and back along x
     pelvis, toes = travel(j)
     assert np.allclose(pelvis, [1.2, 0.0]) and np.allclose(toes, [0.45, 0.0])
+
+
+def test_chained_windows_hand_on_the_networks_own_frames(tmp_path):
+    """Along a sequence, the chained network's window 2 starts with its own last 2 frames of
+    window 1, in the world (the loop's hand-over); given the data's frames instead it starts
+    with the data's. The first window is the same either way."""
+    import torch
+
+    from motiongen.loading.build import load_model
+    from motiongen.data.windows import WindowDataset
+    from tests.helpers import make_dataset
+    from tests.test_sample_cli import _checkpoint
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        from chained_windows import K, chain_starts, run_chains
+        from network_facing import model_and_data
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    ckpt = _checkpoint(make_dataset(tmp_path / "ds", T=150) / "ckpt.pt")
+    loaded, ds = model_and_data(str(ckpt))
+    torch.manual_seed(0)
+    wd = WindowDataset(ds, "val", loaded.window, loaded.stats)
+    starts = chain_starts(ds, wd, "val", 2, 10)
+    assert len(starts) == 2                                      # one chain in each of the two val sequences
+    data, given = run_chains(loaded, wd, starts, 2, 2, own=False)
+    _, own = run_chains(loaded, wd, starts, 2, 2, own=True)
+    assert np.allclose(own[:, 0], given[:, 0])
+    assert np.allclose(own[:, 1, :K], own[:, 0, -K:], atol=1e-4)
+    assert np.allclose(given[:, 1, :K], data[:, 1, :K], atol=1e-4)
+    assert not np.allclose(own[:, 1, K:], given[:, 1, K:], atol=1e-3)
+    assert np.allclose(data[:, 1, :K], data[:, 0, -K:], atol=1e-4)   # the data's windows overlap by K frames
+
+
+def test_seams_counts_skating_by_distance_to_an_episode_start(tmp_path):
+    """Toes that slide fast and low only over frames 40-43 (an episode starts at 42): every
+    skating transition lies within 3 frames of that seam, none elsewhere."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        from seams import skating_near_seams
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    from motiongen.metrics import TOE_JOINTS
+    T = 90
+    j = np.zeros((1, T, 22, 3), np.float32)
+    j[:, :, list(TOE_JOINTS), 1] = 0.02
+    for toe in TOE_JOINTS:
+        j[0, 40:, toe, 0] = np.minimum(np.arange(T - 40), 3) * 0.1          # 3 m/s for 3 transitions
+    np.savez(tmp_path / "motion.npz", joints_raw=j, fps=30.0, episode_starts=np.array([0, 42]))
+    line = skating_near_seams(str(tmp_path / "motion.npz"))
+    near, elsewhere = re.search(r"\) ([\d.]+), elsewhere ([\d.]+)", line).groups()
+    assert float(elsewhere) == 0 and float(near) > 0, line
+    assert re.search(r"network skating ([\d.]+)", line).group(1) == f"{3 / (T - 1):.3f}", line

@@ -1,0 +1,102 @@
+"""Does the network start where its pinned frames end? (not a timed test)
+
+Each window the sampler's loop draws starts with the last 2 frames of the one before, pinned;
+the network draws the rest. This prints, for a checkpoint on `windows` of the data's own
+`split` windows (first 2 frames and the last frame's pelvis x, z given, DDIM-`steps`):
+- per joint, the step (cm, median) from the last pinned frame to the first drawn one, and
+  from that to the next, the network's beside the data's, and how far the network's frames
+  are from the data's there;
+- how far the network's one-step estimate x̂0 is from the clean window (pelvis and left toe,
+  median cm, at a few frames) at noise levels t, given the clean window's own noised version:
+  a denoiser at t = 1 sees the answer;
+and for `sample` outputs (motion.npz, grouped by checkpoint), the network's skating
+(`joints_raw`) within 3 output frames of an episode's start and elsewhere.
+
+    python benchmarks/seams.py [ckpt=PATH] [RUN/motion.npz ...] [split=val] [windows=300] [steps=10]
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import torch
+
+from network_facing import model_and_data, predict_on_windows, random_windows
+
+from motiongen.diffusion.masks import known_mask
+from motiongen.metrics import foot_skating_frames
+from motiongen.models import Condition
+
+JOINTS = ("pelvis", "left_knee", "left_foot", "right_foot", "head", "right_wrist")
+NOISE = (0.01, 0.1, 0.5, 0.9)          # t as a fraction of the schedule's steps (at least 1)
+FRAMES = (0, 1, 2, 3, 8, -1)
+NEAR = 3                                # output frames either side of a seam
+
+
+def steps_at_seam(loaded, ds, split: str, n: int, steps: int) -> None:
+    data, net, _ = predict_on_windows(loaded, ds, split, n, steps)                           # (B, L, J, 3)
+    names = list(loaded.joint_set.names)
+    print(f"  steps at the seam, {len(data)} {split} windows, median cm (frame 1 is the last pinned one):")
+    for name in JOINTS:
+        j = names.index(name)
+        d, m = (np.linalg.norm(np.diff(w[:, :, j], axis=1), axis=-1) for w in (data, net))    # (B, L-1)
+        off = np.linalg.norm(net[:, :, j] - data[:, :, j], axis=-1)                           # (B, L)
+        print(f"    {name:12s} 1->2: network {cm(m[:, 1])}, data {cm(d[:, 1])}; 2->3: network {cm(m[:, 2])}, "
+              f"data {cm(d[:, 2])}; network from the data at 2: {cm(off[:, 2])}, at 3: {cm(off[:, 3])}")
+
+
+def one_step_error(loaded, ds, split: str, n: int) -> None:
+    batch = random_windows(loaded, ds, split, n)
+    x0 = batch["motion"]                                                                      # (B, L, D)
+    B, L, D = x0.shape
+    mask = known_mask(B, L, loaded.joint_set.num_joints, 2, True, False, False, 0, channels=D)
+    model, diffusion = loaded.model, loaded.diffusion
+    enc = model.encode_condition(Condition(scene=batch.get("scene"), actions=batch["actions"]))
+    clean = loaded.layout.decode(loaded.stats.denormalize(x0.double()))[0]                   # (B, L, J, 3)
+    gen = torch.Generator().manual_seed(0)
+    toe = list(loaded.joint_set.names).index("left_foot")
+    print(f"  one-step x̂0 from the clean window noised to t, median cm at frames {FRAMES} (pelvis; left toe):")
+    for level in NOISE:
+        t = torch.full((B,), max(1, round(level * diffusion.num_timesteps)), dtype=torch.long)
+        x_t = torch.where(mask, x0, diffusion.q_sample(x0, t, torch.randn(x0.shape, generator=gen)))
+        with torch.no_grad():
+            x0_hat = diffusion.predict_x0_eps(model(x_t, t, enc, known_mask=mask), x_t, t)[0]
+        err = (loaded.layout.decode(loaded.stats.denormalize(x0_hat.double()))[0] - clean).norm(dim=-1).numpy()
+        print(f"    t = {int(t[0]):4d}: {' '.join(cm(err[:, f, 0]) for f in FRAMES)}; "
+              f"{' '.join(cm(err[:, f, toe]) for f in FRAMES)}")
+
+
+def skating_near_seams(path: str) -> str:
+    d = np.load(path)
+    fps, starts = float(d["fps"]), np.asarray(d["episode_starts"])
+    sk = np.concatenate([foot_skating_frames(j.astype(np.float64), fps) for j in d["joints_raw"]])   # (S*(T-1),)
+    T = d["joints_raw"].shape[1] - 1
+    near = np.tile(np.min(np.abs(np.arange(T)[:, None] - starts[None]), 1) <= NEAR, d["joints_raw"].shape[0])
+    return (f"  {path}: network skating {sk.mean():.3f}; within {NEAR} frames of a seam ({near.mean():.0%} of "
+            f"frames) {sk[near].mean():.3f}, elsewhere {sk[~near].mean():.3f}")
+
+
+def cm(x: np.ndarray) -> str:
+    return f"{100 * np.median(x):.1f}"
+
+
+def main(argv: list[str]) -> None:
+    keys = dict(a.split("=", 1) for a in argv if "=" in a)
+    unknown = set(keys) - {"ckpt", "split", "windows", "steps"}
+    usage = __doc__.strip().splitlines()[-1].strip()
+    if unknown or not argv:
+        print(f"error: unknown key(s) {sorted(unknown)}; usage: {usage}" if unknown else f"usage: {usage}", file=sys.stderr)
+        sys.exit(2)
+    split, n, steps = keys.get("split", "val"), int(keys.get("windows", 300)), int(keys.get("steps", 10))
+    if "ckpt" in keys:
+        loaded, ds = model_and_data(keys["ckpt"])
+        print(f"{keys['ckpt']}:")
+        steps_at_seam(loaded, ds, split, n, steps)
+        one_step_error(loaded, ds, split, n)
+    for path in (a for a in argv if "=" not in a):
+        print(skating_near_seams(path))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
