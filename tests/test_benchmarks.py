@@ -10,6 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
+from motiongen.data.windows import WindowDataset
+from tests.helpers import make_dataset
+from tests.test_sample_cli import _checkpoint
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -76,12 +80,6 @@ def test_chained_windows_hand_on_the_networks_own_frames(tmp_path):
     """Along a sequence, the chained network's window 2 starts with its own last 2 frames of
     window 1, in the world (the loop's hand-over); given the data's frames instead it starts
     with the data's. The first window is the same either way."""
-    import torch
-
-    from motiongen.loading.build import load_model
-    from motiongen.data.windows import WindowDataset
-    from tests.helpers import make_dataset
-    from tests.test_sample_cli import _checkpoint
     sys.path.insert(0, str(REPO / "benchmarks"))
     try:
         from chained_windows import K, chain_starts, run_chains
@@ -90,7 +88,6 @@ def test_chained_windows_hand_on_the_networks_own_frames(tmp_path):
         sys.path.remove(str(REPO / "benchmarks"))
     ckpt = _checkpoint(make_dataset(tmp_path / "ds", T=150) / "ckpt.pt")
     loaded, ds = model_and_data(str(ckpt))
-    torch.manual_seed(0)
     wd = WindowDataset(ds, "val", loaded.window, loaded.stats)
     starts = chain_starts(ds, wd, "val", 2, 10)
     assert len(starts) == 2                                      # one chain in each of the two val sequences
