@@ -34,9 +34,10 @@ class ModelConfig:
     # x0 through a skip from the input (EDM's preconditioning, Karras et al. 2022): the network's
     # output F becomes x̂0 = c_skip(t) x_t + c_out(t) F with c_skip, c_out for data of this
     # standard deviation (normalised units), so at low noise it refines its input instead of
-    # redrawing the window: measured without it, the x0 network's x̂0 at t = 1 is as far from
-    # the clean window as at t = T, 4 cm at the pelvis (docs/results.md). 0 = off. Needs x0
-    # prediction and the diffusion schedule (`build_model(..., alphas_cumprod=)`).
+    # redrawing the window (without it the x0 network's x̂0 at t = 1 is as far from the clean
+    # window as at t = T, 4 cm at the pelvis). Tried on the demo and the quality size, not
+    # kept: sampled, the windows jitter and the body comes apart (docs/results.md). 0 = off.
+    # Needs x0 prediction and the diffusion schedule (`build_model(..., alphas_cumprod=)`).
     skip_sigma_data: float = 0.0
     # Scene encoder: ViT over the local occupancy grid, height slices as channels.
     use_scene: bool = True
