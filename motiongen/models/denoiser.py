@@ -267,7 +267,7 @@ class Denoiser(nn.Module):
 def skip_coefficients(alphas_cumprod: Tensor, sigma_data: float) -> Tensor:
     """(T, 2) float32 EDM's c_skip, c_out for x_t = √ᾱ x0 + √(1-ᾱ) ε and data of standard
     deviation σ: x̂0 = c_skip x_t + c_out F is the best linear estimate of x0 from x_t plus a
-    unit-scaled correction. c_skip → 1/√ᾱ ≈ 1 at no noise, → 0 at pure noise (plain x0 there)."""
+    unit-scaled correction. c_skip → 1 at no noise, → 0 at pure noise (plain x0 there)."""
     ab = alphas_cumprod.double()
     s2 = sigma_data ** 2
     denom = ab * s2 + (1 - ab)
