@@ -9,8 +9,8 @@ the network draws the rest. This prints, for a checkpoint on `windows` of the da
 - how far the network's one-step estimate x̂0 is from the clean window (pelvis and left toe,
   median cm, at a few frames) at noise levels t, given the clean window's own noised version:
   a denoiser at t = 1 sees the answer;
-and for `sample` outputs (motion.npz, grouped by checkpoint), the network's skating
-(`joints_raw`) within 3 output frames of an episode's start and elsewhere.
+and for `sample` outputs (motion.npz), the network's skating (`joints_raw`) within 3 output
+frames of an episode's start and elsewhere, and the same at the model's rate (within 1 frame).
 
     python benchmarks/seams.py [ckpt=PATH] [RUN/motion.npz ...] [split=val] [windows=300] [steps=10]
 """
@@ -68,13 +68,20 @@ def one_step_error(loaded, ds, split: str, n: int) -> None:
 
 
 def skating_near_seams(path: str) -> str:
+    """The network's skating (`joints_raw`) within NEAR frames of an episode's start and
+    elsewhere, at the output's rate and at the model's (every n-th output frame is a model frame)."""
     d = np.load(path)
     fps, starts = float(d["fps"]), np.asarray(d["episode_starts"])
-    sk = np.concatenate([foot_skating_frames(j.astype(np.float64), fps) for j in d["joints_raw"]])   # (S*(T-1),)
-    T = d["joints_raw"].shape[1] - 1
-    near = np.tile(np.min(np.abs(np.arange(T)[:, None] - starts[None]), 1) <= NEAR, d["joints_raw"].shape[0])
-    return (f"  {path}: network skating {sk.mean():.3f}; within {NEAR} frames of a seam ({near.mean():.0%} of "
-            f"frames) {sk[near].mean():.3f}, elsewhere {sk[~near].mean():.3f}")
+    n = round(fps / float(d["model_fps"])) if "model_fps" in d.files else 1
+    parts = []
+    for step in dict.fromkeys((1, n)):
+        sk = np.concatenate([foot_skating_frames(j[::step].astype(np.float64), fps / step) for j in d["joints_raw"]])
+        T = len(sk) // d["joints_raw"].shape[0]
+        seams = starts // step
+        near = np.tile(np.min(np.abs(np.arange(T)[:, None] - seams[None]), 1) <= max(1, NEAR // step), d["joints_raw"].shape[0])
+        parts.append(f"at {fps / step:g} fps {sk.mean():.3f}; near a seam ({near.mean():.0%} of frames) "
+                     f"{sk[near].mean():.3f}, elsewhere {sk[~near].mean():.3f}")
+    return f"  {path}: network skating " + "; ".join(parts)
 
 
 def cm(x: np.ndarray) -> str:

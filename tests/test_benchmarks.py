@@ -102,7 +102,8 @@ def test_chained_windows_hand_on_the_networks_own_frames(tmp_path):
 
 def test_seams_counts_skating_by_distance_to_an_episode_start(tmp_path):
     """Toes that slide fast and low only over frames 40-43 (an episode starts at 42): every
-    skating transition lies within 3 frames of that seam, none elsewhere."""
+    skating transition lies within 3 frames of that seam, none elsewhere, at 30 fps and at the
+    model's 10 fps (every third frame)."""
     sys.path.insert(0, str(REPO / "benchmarks"))
     try:
         from seams import skating_near_seams
@@ -114,8 +115,10 @@ def test_seams_counts_skating_by_distance_to_an_episode_start(tmp_path):
     j[:, :, list(TOE_JOINTS), 1] = 0.02
     for toe in TOE_JOINTS:
         j[0, 40:, toe, 0] = np.minimum(np.arange(T - 40), 3) * 0.1          # 3 m/s for 3 transitions
-    np.savez(tmp_path / "motion.npz", joints_raw=j, fps=30.0, episode_starts=np.array([0, 42]))
+    np.savez(tmp_path / "motion.npz", joints_raw=j, fps=30.0, model_fps=10.0, episode_starts=np.array([0, 42]))
     line = skating_near_seams(str(tmp_path / "motion.npz"))
-    near, elsewhere = re.search(r"\) ([\d.]+), elsewhere ([\d.]+)", line).groups()
-    assert float(elsewhere) == 0 and float(near) > 0, line
-    assert re.search(r"network skating ([\d.]+)", line).group(1) == f"{3 / (T - 1):.3f}", line
+    rates = re.findall(r"at (\d+) fps ([\d.]+); near a seam \(\d+% of frames\) ([\d.]+), elsewhere ([\d.]+)", line)
+    assert [r[0] for r in rates] == ["30", "10"], line                # the output's rate, then the model's
+    for _, total, near, elsewhere in rates:
+        assert float(elsewhere) == 0 and float(near) > 0, line
+    assert rates[0][1] == f"{3 / (T - 1):.3f}", line                  # 3 of the T - 1 transitions at 30 fps
