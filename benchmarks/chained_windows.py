@@ -23,11 +23,9 @@ from network_facing import model_and_data
 from toe_clearance import row, travel
 
 from motiongen.cli import parse_key_values, tool_main
-from motiongen.data.windows import WindowDataset
-from motiongen.diffusion import sample
-from motiongen.diffusion.masks import known_mask, replace_mask
-from motiongen.geometry import canonical_frame, invert_rigid, transform_points
-from motiongen.models import Condition
+from motiongen.data.windows import WindowDataset, canonicalize
+from motiongen.geometry import invert_rigid, transform_points
+from motiongen.loading.build import sample_windows
 from motiongen.skeleton import PELVIS
 
 SPEC = {"ckpt": (str, None), "split": (str, "val"), "windows": (int, 6), "chains": (int, 120), "steps": (int, 10)}
@@ -60,9 +58,8 @@ def run_chains(loaded, wd: WindowDataset, starts: np.ndarray, windows: int, step
         data.append(transform_points(T[:, None], local))
         x0 = batch["motion"]
         if own and prev is not None:
-            T = canonical_frame(prev[:, L - K])                                              # the loop's frame
             local = local.clone()
-            local[:, :K] = transform_points(invert_rigid(T)[:, None], prev[:, L - K:])
+            local[:, :K], T = canonicalize(prev[:, L - K:])                                  # the loop's frame
             local[:, -1, PELVIS] = transform_points(invert_rigid(T), data[-1][:, -1, PELVIS][:, None])[:, 0]
             stance = torch.zeros(local.shape[0], L, layout.num_contacts, dtype=torch.bool)
             stance[:, :K] = prev_stance[:, L - K:]
@@ -70,11 +67,8 @@ def run_chains(loaded, wd: WindowDataset, starts: np.ndarray, windows: int, step
             if "scene" in batch:
                 batch["scene"] = torch.stack([torch.from_numpy(wd.local_scene(f, g.numpy(), t.numpy()))
                                               for f, g, t in zip(frames, local[:, -1, PELVIS], T)])
-        N, _, D = x0.shape
-        mask = known_mask(N, L, loaded.joint_set.num_joints, K, True, False, False, 0, channels=D)
-        x = sample(loaded.diffusion, loaded.model, x0.shape, Condition(scene=batch.get("scene"), actions=batch["actions"]),
-                   known=x0, known_mask=mask, sampler="ddim", steps=steps, generator=gen,
-                   replace_mask=replace_mask(mask, loaded.predict_goal))
+        x = sample_windows(loaded.model, loaded.diffusion, dict(batch, motion=x0), loaded.config, loaded.device,
+                           gen, steps)
         joints, prev_stance = layout.decode(stats.denormalize(x.double()))
         prev = transform_points(T[:, None], joints)
         net.append(prev)

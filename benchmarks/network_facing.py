@@ -23,14 +23,11 @@ from hand_goal import quartiles, yaw_apart
 
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.data.windows import WindowDataset
-from motiongen.diffusion import sample
-from motiongen.diffusion.masks import known_mask, replace_mask
 from motiongen.eval.evaluate_config import dataset_config
 from motiongen.geometry import facing_yaw
 from motiongen.importers.sources import open_dataset
-from motiongen.loading.build import load_model
+from motiongen.loading.build import load_model, sample_windows
 from motiongen.metrics import heading_off_travel_angles
-from motiongen.models import Condition
 from motiongen.skeleton import LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 
 SPEC = {"ckpt": (str, None), "split": (str, "val"), "windows": (int, 200), "steps": (int, 10)}
@@ -56,11 +53,8 @@ def predict_on_windows(loaded, ds, split: str, n: int, steps: int) -> tuple[np.n
     the window's first 2 frames and its last-frame pelvis x, z (DDIM-`steps`, fixed noise)."""
     batch = random_windows(loaded, ds, split, n)
     x0 = batch["motion"]                                                                       # (B, L, D)
-    B, L, D = x0.shape
-    mask = known_mask(B, L, loaded.joint_set.num_joints, 2, True, False, False, 0, channels=D)
-    x = sample(loaded.diffusion, loaded.model, x0.shape, Condition(scene=batch.get("scene"), actions=batch["actions"]),
-               known=x0, known_mask=mask, sampler="ddim", steps=steps,
-               generator=torch.Generator().manual_seed(0), replace_mask=replace_mask(mask, loaded.predict_goal))
+    x = sample_windows(loaded.model, loaded.diffusion, batch, loaded.config, loaded.device,
+                       torch.Generator().manual_seed(0), steps)
     data, net = (loaded.layout.decode(loaded.stats.denormalize(m))[0].numpy().astype(np.float64) for m in (x0, x))
     return data, net, ds.fps / loaded.window.stride
 

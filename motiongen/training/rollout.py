@@ -22,9 +22,8 @@ import torch
 from torch import Tensor
 
 from motiongen.data.representation import Layout
-from motiongen.data.windows import NormStats
+from motiongen.data.windows import NormStats, canonicalize
 from motiongen.diffusion.masks import transition_mask
-from motiongen.geometry import canonical_frame, invert_rigid, transform_points
 from motiongen.loading.build import sample_windows
 
 
@@ -46,12 +45,11 @@ def own_transitions(model, diffusion, batch: dict, x0: Tensor, known_mask: Tenso
     prev = {key: batch[f"prev_{key}"][pick] for key in ("motion", "actions", "scene") if f"prev_{key}" in batch}
     sampled = sample_windows(model, diffusion, prev, cfg, device, generator, steps).float()   # (n, L, D)
     joints, stance = layout.decode(stats.denormalize(sampled))                    # (n, L, J, 3), (n, L, C)
-    world = transform_points(batch["prev_to_world"][pick].to(device, torch.float64)[:, None], joints.double())
-    here = transform_points(invert_rigid(batch["to_world"][pick].to(device, torch.float64))[:, None], world)
-    # here[:, offset + j] falls on this window's frame j; the loop canonicalises at frame 0.
+    # Frame offset + j of the previous window falls on this window's frame j; the loop
+    # canonicalises at frame 0, which no rigid turn about the vertical changes: no need to go
+    # through the world frame.
     n_own = x0.shape[1] - offset
-    own = here[:, offset:]                                                         # (n, L - offset, J, 3)
-    own = transform_points(invert_rigid(canonical_frame(own[:, 0]))[:, None], own)
+    own, _ = canonicalize(joints[:, offset:].double())                            # (n, L - offset, J, 3)
     feats = stats.normalize(layout.encode(own, stance[:, offset:]).to(x0.dtype))  # (n, L - offset, D)
     out = x0.clone()
     keep = pinned[rows, :n_own, None]                                              # (n, L - offset, 1)
