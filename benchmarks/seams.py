@@ -5,12 +5,15 @@ the network draws the rest. This prints, for a checkpoint on `windows` of the da
 `split` windows (first 2 frames and the last frame's pelvis x, z given, DDIM-`steps`):
 - per joint, the step (cm, median) from the last pinned frame to the first drawn one, and
   from that to the next, the network's beside the data's, and how far the network's frames
-  are from the data's there;
+  are from the data's there; and, on the windows that walk, how far the toes are from the
+  pelvis along the floor over the window (the network's feet can stay behind its pelvis);
 - how far the network's one-step estimate x̂0 is from the clean window (pelvis and left toe,
   median cm, at a few frames) at noise levels t, given the clean window's own noised version:
   a denoiser at t = 1 sees the answer;
 and for `sample` outputs (motion.npz), the network's skating (`joints_raw`) within 3 output
-frames of an episode's start and elsewhere, and the same at the model's rate (within 1 frame).
+frames of an episode's start and elsewhere, and the same at the model's rate (within 1 frame);
+and per joint its step at the model's rate into each episode's first frame (the loop's own
+seam) beside its steps between the other model frames.
 
     python benchmarks/seams.py [ckpt=PATH] [RUN/motion.npz ...] [split=val] [windows=300] [steps=10]
 """
@@ -32,6 +35,7 @@ JOINTS = ("pelvis", "left_knee", "left_foot", "right_foot", "head", "right_wrist
 NOISE = (0.01, 0.1, 0.5, 0.9)          # t as a fraction of the schedule's steps (at least 1)
 FRAMES = (0, 1, 2, 3, 8, -1)
 NEAR = 3                                # output frames either side of a seam
+WALKING = 0.8                           # m the data's pelvis travels over a window that walks
 
 
 def steps_at_seam(loaded, ds, split: str, n: int, steps: int) -> None:
@@ -44,6 +48,23 @@ def steps_at_seam(loaded, ds, split: str, n: int, steps: int) -> None:
         off = np.linalg.norm(net[:, :, j] - data[:, :, j], axis=-1)                           # (B, L)
         print(f"    {name:12s} 1->2: network {cm(m[:, 1])}, data {cm(d[:, 1])}; 2->3: network {cm(m[:, 2])}, "
               f"data {cm(d[:, 2])}; network from the data at 2: {cm(off[:, 2])}, at 3: {cm(off[:, 3])}")
+    feet_behind(data, net, names)
+
+
+def feet_behind(data: np.ndarray, net: np.ndarray, names: list) -> None:
+    """How far the toes' midpoint is from the pelvis along the floor over the windows (B, L, J, 3)
+    whose data pelvis travels over WALKING m: where the network's feet stay behind its pelvis,
+    the next window, given those frames, starts with them back under it."""
+    toes = [names.index("left_foot"), names.index("right_foot")]
+    walking = np.linalg.norm(data[:, -1, 0, [0, 2]] - data[:, 0, 0, [0, 2]], axis=-1) > WALKING
+    L = data.shape[1]
+    frames = sorted({1, L // 4, L // 2, 3 * L // 4, L - 1})
+    print(f"  toes' midpoint from the pelvis along the floor, {walking.sum()} windows whose data pelvis travels "
+          f"over {WALKING} m, median cm at frames {frames}:")
+    for who, j in (("data", data), ("network", net)):
+        mid = j[walking][:, :, toes].mean(2)                                                     # (W, L, 3)
+        gap = np.linalg.norm(mid[..., [0, 2]] - j[walking][:, :, 0, [0, 2]], axis=-1)             # (W, L)
+        print(f"    {who:8s} " + " ".join(cm(gap[:, f]) for f in frames))
 
 
 def one_step_error(loaded, ds, split: str, n: int) -> None:
@@ -81,7 +102,23 @@ def skating_near_seams(path: str) -> str:
         near = np.tile(np.min(np.abs(np.arange(T)[:, None] - seams[None]), 1) <= max(1, NEAR // step), d["joints_raw"].shape[0])
         parts.append(f"at {fps / step:g} fps {sk.mean():.3f}; near a seam ({near.mean():.0%} of frames) "
                      f"{sk[near].mean():.3f}, elsewhere {sk[~near].mean():.3f}")
-    return f"  {path}: network skating " + "; ".join(parts)
+    return f"  {path}: network skating " + "; ".join(parts) + "\n" + seam_steps(d, n)
+
+
+def seam_steps(d, n: int) -> str:
+    """Per joint, the network's step (cm, median) at the model's rate into each episode's first
+    frame (the loop's seam: from the frame the episode was handed on to its first drawn one)
+    and between the other consecutive model frames."""
+    names = [str(x) for x in d["joint_names"]]
+    model = d["joints_raw"][:, ::n].astype(np.float64)                                       # (S, T, J, 3)
+    step = np.linalg.norm(np.diff(model, axis=1), axis=-1)                                    # (S, T-1, J)
+    seams = np.unique(np.asarray(d["episode_starts"]) // n)
+    seams = seams[(seams >= 1) & (seams < model.shape[1])] - 1                              # index of the step into it
+    at = np.zeros(step.shape[1], bool)
+    at[seams] = True
+    rows = [f"{name} {cm(step[:, at, names.index(name)])} / {cm(step[:, ~at, names.index(name)])}"
+            for name in JOINTS if name in names]
+    return f"    step into an episode's first model frame / between other model frames, median cm: {', '.join(rows)}"
 
 
 def cm(x: np.ndarray) -> str:

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from motiongen.data.windows import WindowDataset
+from motiongen.skeleton import BODY_JOINT_NAMES
 from tests.helpers import make_dataset
 from tests.test_sample_cli import _checkpoint
 
@@ -115,10 +116,53 @@ def test_seams_counts_skating_by_distance_to_an_episode_start(tmp_path):
     j[:, :, list(TOE_JOINTS), 1] = 0.02
     for toe in TOE_JOINTS:
         j[0, 40:, toe, 0] = np.minimum(np.arange(T - 40), 3) * 0.1          # 3 m/s for 3 transitions
-    np.savez(tmp_path / "motion.npz", joints_raw=j, fps=30.0, model_fps=10.0, episode_starts=np.array([0, 42]))
+    np.savez(tmp_path / "motion.npz", joints_raw=j, fps=30.0, model_fps=10.0, episode_starts=np.array([0, 42]),
+             joint_names=np.array(BODY_JOINT_NAMES))
     line = skating_near_seams(str(tmp_path / "motion.npz"))
     rates = re.findall(r"at (\d+) fps ([\d.]+); near a seam \(\d+% of frames\) ([\d.]+), elsewhere ([\d.]+)", line)
     assert [r[0] for r in rates] == ["30", "10"], line                # the output's rate, then the model's
     for _, total, near, elsewhere in rates:
         assert float(elsewhere) == 0 and float(near) > 0, line
     assert rates[0][1] == f"{3 / (T - 1):.3f}", line                  # 3 of the T - 1 transitions at 30 fps
+
+
+def test_seams_reports_the_loops_own_step_into_each_episode():
+    """A pelvis that moves 1 cm per model frame and 20 cm into the first frame of each episode
+    (output frames 30 and 60 at 30 fps, model frames 10 and 20 at 10 fps): 20 / 1 cm."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        from seams import seam_steps
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    T = 90
+    step = np.full(T // 3, 0.01)                                            # step[i]: into model frame i
+    step[[10, 20]] = 0.20
+    x = np.cumsum(step)                                                     # (30,) model frames
+    j = np.zeros((2, T, 22, 3))
+    j[:, :, :, 0] = np.repeat(x, 3)[None, :, None]                          # each model frame held 3 output frames
+    line = seam_steps({"joints_raw": j, "joint_names": np.array(BODY_JOINT_NAMES),
+                       "episode_starts": np.array([0, 30, 60])}, 3)
+    assert "pelvis 20.0 / 1.0" in line and "head 20.0 / 1.0" in line, line
+
+
+def test_seams_measures_feet_behind_the_pelvis_on_walking_windows(capsys):
+    """The data's toes under its pelvis as it walks 1.2 m; the network's stay where they start:
+    0 cm for the data at every frame, for the network the pelvis's travel at that frame. A
+    window that stands is not counted."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        from seams import feet_behind
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    L = 13
+    walk = np.zeros((L, 22, 3))
+    walk[:, :, 2] = np.linspace(0, 1.2, L)[:, None]                         # everything moves 0.1 m per frame
+    stay = walk.copy()
+    stay[:, [BODY_JOINT_NAMES.index("left_foot"), BODY_JOINT_NAMES.index("right_foot")], 2] = 0.0
+    data = np.stack([walk, np.zeros((L, 22, 3))])
+    net = np.stack([stay, np.zeros((L, 22, 3))])
+    feet_behind(data, net, list(BODY_JOINT_NAMES))
+    out = capsys.readouterr().out
+    assert "1 windows" in out and "frames [1, 3, 6, 9, 12]" in out, out
+    assert re.search(r"data +0\.0 0\.0 0\.0 0\.0 0\.0", out), out
+    assert re.search(r"network +10\.0 30\.0 60\.0 90\.0 120\.0", out), out
