@@ -174,3 +174,31 @@ def test_foot_height_is_how_far_the_feet_are_in_height():
     assert list(body_losses(run)(x0, x0, free, T0)) == ["foot_height"]
     with pytest.raises(ConfigError, match="train.w_foot_height"):
         TrainConfig(w_foot_height=-0.1)
+
+
+def test_foot_offset_is_how_far_the_feet_are_from_the_pelvis_along_the_floor():
+    """The feet 0.3 m behind the pelvis where the data's are under it: 0.3 m, planted or not;
+    one toe 0.2 m out: 0.05 m (a mean over the four foot joints); the whole body moved along the
+    floor, lifted, or the feet lifted: 0 (the offset is horizontal and from the body's own
+    pelvis). Built by the trainer from its key alone."""
+    rest = np.repeat(REST[None].astype(np.float64), L, 0)                             # (L, 22, 3)
+    planted = np.ones((L, 4), bool)
+    x0, free = window(rest, planted), torch.ones_like(window(rest, planted))
+    feet = BodyLosses(LAYOUT, STATS, BODY.parents, FPS, 0.0, 0.0, w_foot_offset=0.5)
+    behind = rest.copy()
+    behind[:, list(FOOT_JOINTS), 2] -= 0.3
+    assert feet(window(behind, ~planted), x0, free, T0)["foot_offset"][1].item() == pytest.approx(0.3, rel=1e-6)
+    one = rest.copy()
+    one[:, FOOT_JOINTS[1], 0] += 0.2
+    assert feet(window(one, planted), x0, free, T0)["foot_offset"][1].item() == pytest.approx(0.05, rel=1e-6)
+    for same in (rest + np.array([1.5, 0.2, -0.7]), rest + (0.1 * np.arange(L))[:, None, None] * np.array([0, 0, 1.0])):
+        assert feet(window(same, planted), x0, free, T0)["foot_offset"][1].item() == pytest.approx(0, abs=1e-9)
+    up = rest.copy()
+    up[:, list(FOOT_JOINTS), 1] += 0.1
+    assert feet(window(up, planted), x0, free, T0)["foot_offset"][1].item() == pytest.approx(0, abs=1e-9)
+    assert feet(window(behind, planted), x0, free, T0)["foot_offset"][0] == 0.5
+    data = SimpleNamespace(layout=LAYOUT, stats=STATS, cfg=SimpleNamespace(stride=1))
+    run = SimpleNamespace(tc=TrainConfig(w_foot_offset=0.1), train_set=data, ds=SimpleNamespace(joint_set=BODY, fps=FPS))
+    assert list(body_losses(run)(x0, x0, free, T0)) == ["foot_offset"]
+    with pytest.raises(ConfigError, match="train.w_foot_offset"):
+        TrainConfig(w_foot_offset=-0.1)

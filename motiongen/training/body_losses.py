@@ -26,6 +26,13 @@ pinned values elsewhere), in metres, over the frames with any free entry:
   7-14 cm, and the skating metric counts such a swing as a foot sliding on the floor. The
   planted-feet term does not see a swing, and in the diffusion loss a few centimetres of foot
   height are little among ranges of metres. (Measured, with what it costs: docs/results.md.)
+* foot offset: |(f̂ − p̂) − (f − p)| (m) along the floor, each foot joint f taken from its own
+  pelvis p, mean over the foot joints and frames. With the planted-feet term a walking
+  network's feet trail its pelvis further each frame (the demo's toes 0.5 m behind it at the
+  window's last frame, the data's 0.1 m), and the next window, given those frames, puts them
+  back under it in one step: the loop's seam. This term holds them under the pelvis, but the
+  network then moves its whole body little within a window and jumps at the seam instead
+  (docs/results.md), so no recipe uses it.
 
 Weighting over noise levels (`train.geometry_weighting`): `uniform`, or `signal`: each window
 weighted by ᾱ_t, the share of signal in its input. At high noise the best prediction is the
@@ -54,7 +61,7 @@ class BodyLosses:
 
     def __init__(self, layout: Layout, stats: NormStats, parents, fps: float, w_bone: float, w_foot: float,
                  noise_weights: torch.Tensor | None = None, start: int = 0, ramp: int = 0, w_facing: float = 0.0,
-                 w_foot_height: float = 0.0):
+                 w_foot_height: float = 0.0, w_foot_offset: float = 0.0):
         if w_foot > 0 and not layout.num_contacts:
             raise ConfigError("train.w_planted_feet needs stance channels (window.contact_joints)")
         self.layout, self.stats, self.fps = layout, stats, float(fps)
@@ -62,6 +69,7 @@ class BodyLosses:
         self.parent = [parents[j] for j in self.child]
         self.w_bone, self.w_foot, self.w_facing = float(w_bone), float(w_foot), float(w_facing)
         self.w_foot_height = float(w_foot_height)
+        self.w_foot_offset = float(w_foot_offset)
         self.noise_weights = noise_weights        # (T,) per diffusion step, or None: uniform
         self.start, self.ramp = int(start), int(ramp)
         self.step = 0                             # the training step, set by the loop before each step
@@ -98,6 +106,8 @@ class BodyLosses:
             feet = list(FOOT_JOINTS)
             err = (j_hat[..., feet, 1] - j[..., feet, 1]).abs().mean(-1)                   # (B, L)
             out["foot_height"] = (scale * self.w_foot_height, frame_mean(err, frames))
+        if self.w_foot_offset > 0:
+            out["foot_offset"] = (scale * self.w_foot_offset, frame_mean(foot_offsets(j_hat, j), frames))
         return out
 
     def _bones(self, j_hat, j, frames):
@@ -118,6 +128,14 @@ def across_vectors(joints: torch.Tensor) -> torch.Tensor:
     the pelvis and the shoulders face (`geometry.facing_yaw` reads the hips' one), and how wide."""
     return torch.cat([joints[..., LEFT_HIP, :] - joints[..., RIGHT_HIP, :],
                       joints[..., LEFT_SHOULDER, :] - joints[..., RIGHT_SHOULDER, :]], -1)
+
+
+def foot_offsets(j_hat: torch.Tensor, j: torch.Tensor) -> torch.Tensor:
+    """(B, L) mean over the foot joints of how far (m) the prediction's foot is from the clean
+    window's along the floor, each taken from its own pelvis: bodies j_hat, j (B, L, J, 3)."""
+    feet = list(FOOT_JOINTS)
+    rel = lambda x: (x[..., feet, :] - x[..., :1, :])[..., [0, 2]]                              # noqa: E731  (B, L, F, 2)
+    return (rel(j_hat) - rel(j)).norm(dim=-1).mean(-1)
 
 
 def frame_mean(err: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
