@@ -20,14 +20,16 @@ seam) beside its steps between the other model frames.
 
 from __future__ import annotations
 
-import sys
+from pathlib import Path
 
 import numpy as np
 import torch
 
 from network_facing import model_and_data, predict_on_windows, random_windows
 
+from motiongen.cli import parse_key_values, tool_main
 from motiongen.diffusion.masks import known_mask
+from motiongen.errors import ConfigError
 from motiongen.metrics import foot_skating_frames
 from motiongen.models import Condition
 
@@ -125,22 +127,27 @@ def cm(x: np.ndarray) -> str:
     return f"{100 * np.median(x):.1f}"
 
 
+SPEC = {"ckpt": (str, None, "checkpoint to run on the data's windows"), "split": (str, "val", "the data's split"),
+        "windows": (int, 300, "of the data's windows"), "steps": (int, 10, "DDIM steps")}
+USAGE = __doc__.strip().splitlines()[-1].strip()
+
+
 def main(argv: list[str]) -> None:
-    keys = dict(a.split("=", 1) for a in argv if "=" in a)
-    unknown = set(keys) - {"ckpt", "split", "windows", "steps"}
-    usage = __doc__.strip().splitlines()[-1].strip()
-    if unknown or not argv:
-        print(f"error: unknown key(s) {sorted(unknown)}; usage: {usage}" if unknown else f"usage: {usage}", file=sys.stderr)
-        sys.exit(2)
-    split, n, steps = keys.get("split", "val"), int(keys.get("windows", 300)), int(keys.get("steps", 10))
-    if "ckpt" in keys:
-        loaded, ds = model_and_data(keys["ckpt"])
-        print(f"{keys['ckpt']}:")
-        steps_at_seam(loaded, ds, split, n, steps)
-        one_step_error(loaded, ds, split, n)
-    for path in (a for a in argv if "=" not in a):
+    paths = [a for a in argv if "=" not in a and not a.startswith("-")]
+    opts = parse_key_values([a for a in argv if a not in paths], SPEC, usage=USAGE, doc=__doc__)
+    if opts["ckpt"] is None and not paths:
+        raise ConfigError(f"nothing to measure: give ckpt=PATH or motion.npz files (usage: {USAGE})")
+    for path in paths:
+        if not Path(path).is_file():
+            raise ConfigError(f"{path}: no such file")
+    if opts["ckpt"] is not None:
+        loaded, ds = model_and_data(opts["ckpt"])
+        print(f"{opts['ckpt']}:")
+        steps_at_seam(loaded, ds, opts["split"], opts["windows"], opts["steps"])
+        one_step_error(loaded, ds, opts["split"], opts["windows"])
+    for path in paths:
         print(skating_near_seams(path))
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    tool_main(main)()                     # a bad key or a missing file: one line, exit 2

@@ -20,19 +20,23 @@ as its pelvis); the same travel is printed for the sampler's walking episodes.
 
 from __future__ import annotations
 
-import sys
+from pathlib import Path
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from network_facing import model_and_data, predict_on_windows
 
+from motiongen.cli import parse_key_values, tool_main
+from motiongen.errors import ConfigError
 from motiongen.metrics import TOE_JOINTS, foot_skating_frames
 from motiongen.skeleton import PELVIS
 
 FAST = 0.5                                   # m/s, the skating figure's speed threshold
 SPEED_BINS = ((0.3, 0.6), (0.6, 0.9), (0.9, 1.2), (1.2, 3.0))   # m/s, the pelvis over 1 s
 GOAL_BINS = ((0.3, 0.6), (0.6, 0.9), (0.9, 1.2), (1.2, 1.5), (1.5, 3.0))   # m over a window
+SPEC = {"split": (str, "val", "the data's split"), "windows": (int, 0, "of the data's windows per checkpoint; 0 = none")}
+USAGE = __doc__.strip().splitlines()[-1].strip()
 
 
 def fast_toe_heights(joints: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
@@ -102,11 +106,14 @@ def episode_travel(outs: list) -> str:
 
 
 def main(argv: list[str]) -> None:
-    keys = dict(a.split("=", 1) for a in argv if "=" in a)
-    split, windows = keys.get("split", "val"), int(keys.get("windows", 0))
-    paths = [a for a in argv if "=" not in a]
+    paths = [a for a in argv if "=" not in a and not a.startswith("-")]
+    opts = parse_key_values([a for a in argv if a not in paths], SPEC, usage=USAGE, doc=__doc__)
+    split, windows = opts["split"], opts["windows"]
     if not paths:
-        sys.exit(__doc__.splitlines()[-1].strip())
+        raise ConfigError(f"no motion.npz given (usage: {USAGE})")
+    for path in paths:
+        if not Path(path).is_file():
+            raise ConfigError(f"{path}: no such file")
     runs: dict[str, list] = {}                 # checkpoint -> [(fps, npz), ...], in the order given
     for path in paths:
         d = np.load(path)
@@ -133,4 +140,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    tool_main(main)()                     # a bad key or a missing file: one line, exit 2

@@ -166,3 +166,17 @@ def test_seams_measures_feet_behind_the_pelvis_on_walking_windows(capsys):
     assert "1 windows" in out and "frames [1, 3, 6, 9, 12]" in out, out
     assert re.search(r"data +0\.0 0\.0 0\.0 0\.0 0\.0", out), out
     assert re.search(r"network +10\.0 30\.0 60\.0 90\.0 120\.0", out), out
+
+
+def test_seam_and_toe_scripts_refuse_bad_input_in_one_line(tmp_path):
+    """An unknown key, a bad number, a missing file, nothing to measure: one line naming it on
+    stderr, exit status 2, no traceback."""
+    cases = {"seams.py": [["bogus=1"], ["windows=abc"], [str(tmp_path / "none.npz")], []],
+             "toe_clearance.py": [["bogus=1"], ["windows=abc"], [str(tmp_path / "none.npz")], ["split=val"]]}
+    for script, argvs in cases.items():
+        for argv in argvs:
+            done = subprocess.run([sys.executable, str(REPO / "benchmarks" / script), *argv], capture_output=True,
+                                  text=True, timeout=120, cwd=tmp_path)
+            err = done.stderr.strip().splitlines()
+            assert done.returncode == 2 and len(err) == 1 and "Traceback" not in done.stderr, (script, argv, done.stderr)
+            assert any(word in err[0] for word in ("bogus", "abc", "none.npz", "usage")), (script, argv, err)
