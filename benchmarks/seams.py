@@ -1,7 +1,8 @@
 """Does the network start where its pinned frames end? (not a timed test)
 
-Each window the sampler's loop draws starts with the last 2 frames of the one before, pinned;
-the network draws the rest. This prints, for a checkpoint on `windows` of the data's own
+Each window the sampler's loop draws starts with the last k frames of the one before, pinned
+(k the checkpoint's `mask.max_transition`: 3 for the demo, 2 for the quality recipe); the
+network draws the rest. This prints, for a checkpoint on `windows` of the data's own
 `split` windows (first 2 frames and the last frame's pelvis x, z given, DDIM-`steps`):
 - per joint, the step (cm, median) from the last pinned frame to the first drawn one, and
   from that to the next, the network's beside the data's, and how far the network's frames

@@ -51,7 +51,7 @@ import torch
 from motiongen.data.representation import Layout
 from motiongen.data.windows import NormStats
 from motiongen.errors import ConfigError
-from motiongen.skeleton import FOOT_JOINTS, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
+from motiongen.skeleton import FOOT_JOINTS, LEFT_HIP, LEFT_SHOULDER, PELVIS, RIGHT_HIP, RIGHT_SHOULDER
 
 
 class BodyLosses:
@@ -134,8 +134,8 @@ def foot_offsets(j_hat: torch.Tensor, j: torch.Tensor) -> torch.Tensor:
     """(B, L) mean over the foot joints of how far (m) the prediction's foot is from the clean
     window's along the floor, each taken from its own pelvis: bodies j_hat, j (B, L, J, 3)."""
     feet = list(FOOT_JOINTS)
-    rel = lambda x: (x[..., feet, :] - x[..., :1, :])[..., [0, 2]]                              # noqa: E731  (B, L, F, 2)
-    return (rel(j_hat) - rel(j)).norm(dim=-1).mean(-1)
+    off_hat, off = ((x[..., feet, :] - x[..., PELVIS:PELVIS + 1, :])[..., [0, 2]] for x in (j_hat, j))   # (B, L, F, 2)
+    return (off_hat - off).norm(dim=-1).mean(-1)
 
 
 def frame_mean(err: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
