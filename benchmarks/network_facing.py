@@ -16,6 +16,8 @@ also off its travel walks sideways.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import torch
 
@@ -23,6 +25,7 @@ from hand_goal import quartiles, yaw_apart
 
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.data.windows import WindowDataset
+from motiongen.errors import ConfigError
 from motiongen.eval.evaluate_config import dataset_config
 from motiongen.geometry import facing_yaw
 from motiongen.importers.sources import open_dataset
@@ -31,6 +34,17 @@ from motiongen.metrics import heading_off_travel_angles
 from motiongen.skeleton import LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 
 SPEC = {"ckpt": (str, None), "split": (str, "val"), "windows": (int, 200), "steps": (int, 10)}
+
+
+def files_and_keys(argv: list[str], spec: dict, usage: str, doc: str) -> tuple[list[str], dict]:
+    """The files (arguments without `=`) and the key=value options of a benchmark that reads
+    `sample` outputs; a bad key or value, or a file that is not there, raises ConfigError."""
+    paths = [a for a in argv if "=" not in a and not a.startswith("-")]
+    opts = parse_key_values([a for a in argv if a not in paths], spec, usage=usage, doc=doc)
+    for path in paths:
+        if not Path(path).is_file():
+            raise ConfigError(f"{path}: no such file")
+    return paths, opts
 
 
 def model_and_data(ckpt: str):

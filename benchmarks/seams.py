@@ -21,14 +21,12 @@ seam) beside its steps between the other model frames.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import torch
 
-from network_facing import model_and_data, predict_on_windows, random_windows
+from network_facing import files_and_keys, model_and_data, predict_on_windows, random_windows
 
-from motiongen.cli import parse_key_values, tool_main
+from motiongen.cli import tool_main
 from motiongen.diffusion.masks import known_mask
 from motiongen.errors import ConfigError
 from motiongen.metrics import foot_skating_frames
@@ -134,13 +132,9 @@ USAGE = __doc__.strip().splitlines()[-1].strip()
 
 
 def main(argv: list[str]) -> None:
-    paths = [a for a in argv if "=" not in a and not a.startswith("-")]
-    opts = parse_key_values([a for a in argv if a not in paths], SPEC, usage=USAGE, doc=__doc__)
+    paths, opts = files_and_keys(argv, SPEC, USAGE, __doc__)
     if opts["ckpt"] is None and not paths:
         raise ConfigError(f"nothing to measure: give ckpt=PATH or motion.npz files (usage: {USAGE})")
-    for path in paths:
-        if not Path(path).is_file():
-            raise ConfigError(f"{path}: no such file")
     if opts["ckpt"] is not None:
         loaded, ds = model_and_data(opts["ckpt"])
         print(f"{opts['ckpt']}:")

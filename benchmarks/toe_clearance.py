@@ -20,14 +20,12 @@ as its pelvis); the same travel is printed for the sampler's walking episodes.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
-from network_facing import model_and_data, predict_on_windows
+from network_facing import files_and_keys, model_and_data, predict_on_windows
 
-from motiongen.cli import parse_key_values, tool_main
+from motiongen.cli import tool_main
 from motiongen.errors import ConfigError
 from motiongen.metrics import TOE_JOINTS, foot_skating_frames
 from motiongen.skeleton import PELVIS
@@ -106,14 +104,10 @@ def episode_travel(outs: list) -> str:
 
 
 def main(argv: list[str]) -> None:
-    paths = [a for a in argv if "=" not in a and not a.startswith("-")]
-    opts = parse_key_values([a for a in argv if a not in paths], SPEC, usage=USAGE, doc=__doc__)
+    paths, opts = files_and_keys(argv, SPEC, USAGE, __doc__)
     split, windows = opts["split"], opts["windows"]
     if not paths:
         raise ConfigError(f"no motion.npz given (usage: {USAGE})")
-    for path in paths:
-        if not Path(path).is_file():
-            raise ConfigError(f"{path}: no such file")
     runs: dict[str, list] = {}                 # checkpoint -> [(fps, npz), ...], in the order given
     for path in paths:
         d = np.load(path)

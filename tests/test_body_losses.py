@@ -37,6 +37,12 @@ def losses(w_bone=1.0, w_foot=1.0, noise_weights=None):
 T0 = torch.tensor([0])                                                                  # one window, step 0
 
 
+def trainer_run(tc: TrainConfig) -> SimpleNamespace:
+    """What `trainer.body_losses` reads of a run: its train config, data layout and joint set."""
+    data = SimpleNamespace(layout=LAYOUT, stats=STATS, cfg=SimpleNamespace(stride=1))
+    return SimpleNamespace(tc=tc, train_set=data, ds=SimpleNamespace(joint_set=BODY, fps=FPS))
+
+
 def test_closed_forms():
     rest = np.repeat(REST[None].astype(np.float64), L, 0)                             # (L, 22, 3)
     planted = np.ones((L, 4), bool)
@@ -89,12 +95,10 @@ def test_facing_is_how_far_the_across_vectors_are():
 def test_the_trainer_builds_the_facing_term_alone():
     """train.w_facing alone is enough for the trainer to build the geometry terms, and only the
     facing term is computed; every weight 0 builds none; a negative weight is refused."""
-    data = SimpleNamespace(layout=LAYOUT, stats=STATS, cfg=SimpleNamespace(stride=1))
-    run = lambda tc: SimpleNamespace(tc=tc, train_set=data, ds=SimpleNamespace(joint_set=BODY, fps=FPS))  # noqa: E731
     x0 = window(np.repeat(REST[None].astype(np.float64), L, 0), np.ones((L, 4), bool))
-    terms = body_losses(run(TrainConfig(w_facing=0.5)))(x0, x0, torch.ones_like(x0), T0)
+    terms = body_losses(trainer_run(TrainConfig(w_facing=0.5)))(x0, x0, torch.ones_like(x0), T0)
     assert list(terms) == ["facing"] and terms["facing"][0] == 0.5
-    assert body_losses(run(TrainConfig())) is None
+    assert body_losses(trainer_run(TrainConfig())) is None
     with pytest.raises(ConfigError, match="train.w_facing"):
         TrainConfig(w_facing=-1.0)
 
@@ -169,9 +173,7 @@ def test_foot_height_is_how_far_the_feet_are_in_height():
     assert feet(window(aside, planted), x0, free, T0)["foot_height"][1].item() == pytest.approx(0, abs=1e-9)
     assert feet(window(turn(rest, 1.0), planted), x0, free, T0)["foot_height"][1].item() == pytest.approx(0, abs=1e-9)
     assert feet(window(low, planted), x0, free, T0)["foot_height"][0] == 2.0
-    data = SimpleNamespace(layout=LAYOUT, stats=STATS, cfg=SimpleNamespace(stride=1))
-    run = SimpleNamespace(tc=TrainConfig(w_foot_height=0.3), train_set=data, ds=SimpleNamespace(joint_set=BODY, fps=FPS))
-    assert list(body_losses(run)(x0, x0, free, T0)) == ["foot_height"]
+    assert list(body_losses(trainer_run(TrainConfig(w_foot_height=0.3)))(x0, x0, free, T0)) == ["foot_height"]
     with pytest.raises(ConfigError, match="train.w_foot_height"):
         TrainConfig(w_foot_height=-0.1)
 
@@ -197,8 +199,6 @@ def test_foot_offset_is_how_far_the_feet_are_from_the_pelvis_along_the_floor():
     up[:, list(FOOT_JOINTS), 1] += 0.1
     assert feet(window(up, planted), x0, free, T0)["foot_offset"][1].item() == pytest.approx(0, abs=1e-9)
     assert feet(window(behind, planted), x0, free, T0)["foot_offset"][0] == 0.5
-    data = SimpleNamespace(layout=LAYOUT, stats=STATS, cfg=SimpleNamespace(stride=1))
-    run = SimpleNamespace(tc=TrainConfig(w_foot_offset=0.1), train_set=data, ds=SimpleNamespace(joint_set=BODY, fps=FPS))
-    assert list(body_losses(run)(x0, x0, free, T0)) == ["foot_offset"]
+    assert list(body_losses(trainer_run(TrainConfig(w_foot_offset=0.1)))(x0, x0, free, T0)) == ["foot_offset"]
     with pytest.raises(ConfigError, match="train.w_foot_offset"):
         TrainConfig(w_foot_offset=-0.1)
