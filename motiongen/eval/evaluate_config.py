@@ -48,6 +48,7 @@ class LoopOverrides:
     swing_lift: bool | None = None  # false: a swing stays as low as the network drew it (no data-height arc)
     seat_shift: bool | None = None  # false: seated bodies are not moved onto their seats
     hand_goal_on_arrival: bool | None = None  # false: only the pick-up's own episodes get the hand goal
+    reach_fraction: float | None = None  # the look-ahead's reach: this x the training windows' farthest pelvis offset
 
 
 @dataclass
@@ -145,6 +146,8 @@ def loop_overrides(loop) -> dict:
     for key, value in out.items():
         if isinstance(value, float) and value < 0:
             raise ConfigError(f"loop.{key}: expected a number >= 0, got {value:g}")
+    if not 0 < out.get("reach_fraction", 1) <= 10:              # the range `sample` takes (sample_config)
+        raise ConfigError(f"loop.reach_fraction: expected a number in (0, 10], got {out['reach_fraction']:g}")
     return out
 
 
