@@ -168,15 +168,62 @@ def test_seams_measures_feet_behind_the_pelvis_on_walking_windows(capsys):
     assert re.search(r"network +10\.0 30\.0 60\.0 90\.0 120\.0", out), out
 
 
+def _window_speed():
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        import window_speed
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    return window_speed
+
+
+def test_window_speed_reads_the_pace_by_episode_phase():
+    """Episodes of 42 output frames at 30 fps (21 model frames at 15 fps) after a 6-frame warm-up;
+    the pelvis steps at 0.2 m/s over each episode's first 10 output frames and at 1.0 m/s after:
+    model frames 0-4 read 0.2, 5-20 read 1.0 (the warm-up, shorter, is not counted)."""
+    ws = _window_speed()
+    starts = np.array([0, 6, 48, 90, 132])
+    T = 174
+    v = np.ones(T - 1)
+    for a in starts[1:]:
+        v[a:a + 10] = 0.2
+    j = np.zeros((1, T, 22, 3))
+    j[0, 1:, :, 2] = np.cumsum(v / 30.0)[:, None]
+    phase = ws.speed_by_phase(j, starts, 30.0, 2)
+    assert phase.shape == (21,)
+    np.testing.assert_allclose(phase[:5], 0.2, atol=1e-9)
+    np.testing.assert_allclose(phase[5:], 1.0, atol=1e-9)
+
+
+def test_window_speed_compares_the_walking_windows_frame_by_frame():
+    """The data walks 1.2 m/s across 13 frames at 10 fps; the network the same until its last 4
+    steps, at 0.3 m/s; a window that stands is not counted."""
+    ws = _window_speed()
+    L = 13
+    data = np.zeros((2, L, 22, 3))
+    data[0, :, :, 2] = (np.arange(L) * 0.12)[:, None]
+    net = data.copy()
+    net[0, -4:, :, 2] = (data[0, -5, 0, 2] + 0.03 * np.arange(1, 5))[:, None]
+    d, m, n = ws.speed_by_window_frame(data, net, 10.0)
+    assert n == 1
+    np.testing.assert_allclose(d, 1.2, atol=1e-9)
+    np.testing.assert_allclose(m[:-4], 1.2, atol=1e-9)
+    np.testing.assert_allclose(m[-4:], 0.3, atol=1e-9)
+
+
 def test_seam_and_toe_scripts_refuse_bad_input_in_one_line(tmp_path):
-    """An unknown key, a bad number, a missing file, nothing to measure: one line naming it on
-    stderr, exit status 2, no traceback."""
+    """An unknown key, a bad number, a missing file, nothing to measure, a motion of one
+    episode: one line naming it on stderr, exit status 2, no traceback."""
+    one = tmp_path / "one.npz"
+    np.savez(one, joints=np.zeros((1, 40, 22, 3)), joints_raw=np.zeros((1, 40, 22, 3)), fps=30.0, model_fps=15.0,
+             episode_starts=np.array([0]))
     cases = {"seams.py": [["bogus=1"], ["windows=abc"], [str(tmp_path / "none.npz")], []],
-             "toe_clearance.py": [["bogus=1"], ["windows=abc"], [str(tmp_path / "none.npz")], ["split=val"]]}
+             "toe_clearance.py": [["bogus=1"], ["windows=abc"], [str(tmp_path / "none.npz")], ["split=val"]],
+             "window_speed.py": [["bogus=1"], ["windows=abc"], [str(tmp_path / "none.npz")], [], [str(one)]]}
     for script, argvs in cases.items():
         for argv in argvs:
             done = subprocess.run([sys.executable, str(REPO / "benchmarks" / script), *argv], capture_output=True,
                                   text=True, timeout=120, cwd=tmp_path)
             err = done.stderr.strip().splitlines()
             assert done.returncode == 2 and len(err) == 1 and "Traceback" not in done.stderr, (script, argv, done.stderr)
-            assert any(word in err[0] for word in ("bogus", "abc", "none.npz", "usage")), (script, argv, err)
+            assert any(word in err[0] for word in ("bogus", "abc", "none.npz", "usage", "episodes")), (script, argv, err)
