@@ -8,7 +8,7 @@ the data does not have, which PSKL counts on the trunk. This prints
   frame's pelvis x, z given, DDIM-`steps`: what the loop gives a walking episode), the pelvis's
   speed along the floor at each frame of the window, mean over the windows whose data pelvis
   travels at least 1.2 m, the data's beside the network's, and the network's mean speed over
-  the window's last 4 frames as a share of the data's there;
+  the window's last 4 frame steps as a share of the data's there;
 - for `sample` outputs (motion.npz), the pelvis's speed along the floor by model frame since
   the episode's start, mean over the frames where the body walks (its speed averaged over
   ±0.67 s above 0.3 m/s), for the output (`joints`) and the network's own joints
