@@ -202,3 +202,25 @@ def test_foot_offset_is_how_far_the_feet_are_from_the_pelvis_along_the_floor():
     assert list(body_losses(trainer_run(TrainConfig(w_foot_offset=0.1)))(x0, x0, free, T0)) == ["foot_offset"]
     with pytest.raises(ConfigError, match="train.w_foot_offset"):
         TrainConfig(w_foot_offset=-0.1)
+
+
+def test_pace_is_how_far_the_pelvis_steps_are_from_the_datas():
+    """The data's body walks 0.1 m per frame; a prediction that stops after its third frame
+    misses its last L - 3 steps by 0.1 m each (fps m/s); the whole body shifted or lifted, or
+    its feet moved, costs nothing (steps of the pelvis along the floor). Built by the trainer
+    from its key alone."""
+    planted = np.zeros((L, 4), bool)
+    walk = np.repeat(REST[None].astype(np.float64), L, 0) + (0.1 * np.arange(L))[:, None, None] * np.array([0, 0, 1.0])
+    x0, free = window(walk, planted), torch.ones_like(window(walk, planted))
+    pace = BodyLosses(LAYOUT, STATS, BODY.parents, FPS, 0.0, 0.0, w_pace=0.2)
+    stop = walk.copy()
+    stop[3:] = walk[2]
+    assert pace(window(stop, planted), x0, free, T0)["pace"][1].item() == pytest.approx(0.1 * FPS * (L - 3) / (L - 1), rel=1e-5)
+    feet = walk.copy()
+    feet[:, list(FOOT_JOINTS), 0] += 0.3
+    for same in (walk + np.array([1.5, 0.2, -0.7]), feet):
+        assert pace(window(same, planted), x0, free, T0)["pace"][1].item() == pytest.approx(0, abs=1e-6)
+    assert pace(window(stop, planted), x0, free, T0)["pace"][0] == 0.2
+    assert list(body_losses(trainer_run(TrainConfig(w_pace=0.1)))(x0, x0, free, T0)) == ["pace"]
+    with pytest.raises(ConfigError, match="train.w_pace"):
+        TrainConfig(w_pace=-0.1)

@@ -33,6 +33,12 @@ pinned values elsewhere), in metres, over the frames with any free entry:
   back under it in one step: the loop's seam. This term holds them under the pelvis, but the
   network then moves its whole body little within a window and jumps at the seam instead
   (docs/results.md), so no recipe uses it.
+* pace: |Δp̂ − Δp| (m/s) between the prediction's and the clean window's pelvis steps along the
+  floor, over consecutive frame pairs with a free frame (the step from the last pinned frame
+  into the first drawn one included), mean over them. The demo-size network leapt 5-7 cm into
+  the first frame it drew and ended each window at a third of the data's pace, on the data's
+  windows as in the loop, whose walk then surged once per episode (docs/results.md, "The demo
+  walks in surges"). In the diffusion loss the pelvis's step is two channels of many.
 
 Weighting over noise levels (`train.geometry_weighting`): `uniform`, or `signal`: each window
 weighted by ᾱ_t, the share of signal in its input. At high noise the best prediction is the
@@ -61,7 +67,7 @@ class BodyLosses:
 
     def __init__(self, layout: Layout, stats: NormStats, parents, fps: float, w_bone: float, w_foot: float,
                  noise_weights: torch.Tensor | None = None, start: int = 0, ramp: int = 0, w_facing: float = 0.0,
-                 w_foot_height: float = 0.0, w_foot_offset: float = 0.0):
+                 w_foot_height: float = 0.0, w_foot_offset: float = 0.0, w_pace: float = 0.0):
         if w_foot > 0 and not layout.num_contacts:
             raise ConfigError("train.w_planted_feet needs stance channels (window.contact_joints)")
         self.layout, self.stats, self.fps = layout, stats, float(fps)
@@ -70,6 +76,7 @@ class BodyLosses:
         self.w_bone, self.w_foot, self.w_facing = float(w_bone), float(w_foot), float(w_facing)
         self.w_foot_height = float(w_foot_height)
         self.w_foot_offset = float(w_foot_offset)
+        self.w_pace = float(w_pace)
         self.noise_weights = noise_weights        # (T,) per diffusion step, or None: uniform
         self.start, self.ramp = int(start), int(ramp)
         self.step = 0                             # the training step, set by the loop before each step
@@ -108,6 +115,10 @@ class BodyLosses:
             out["foot_height"] = (scale * self.w_foot_height, frame_mean(err, frames))
         if self.w_foot_offset > 0:
             out["foot_offset"] = (scale * self.w_foot_offset, frame_mean(foot_offsets(j_hat, j), frames))
+        if self.w_pace > 0:
+            err = (pelvis_steps(j_hat) - pelvis_steps(j)).norm(dim=-1) * self.fps               # (B, L-1)
+            w = torch.maximum(frames[:, 1:], frames[:, :-1])                                 # a free frame at either end
+            out["pace"] = (scale * self.w_pace, (err * w).sum() / w.sum().clamp(min=1e-8))
         return out
 
     def _bones(self, j_hat, j, frames):
@@ -136,6 +147,11 @@ def foot_offsets(j_hat: torch.Tensor, j: torch.Tensor) -> torch.Tensor:
     feet = list(FOOT_JOINTS)
     off_hat, off = ((x[..., feet, :] - x[..., PELVIS:PELVIS + 1, :])[..., [0, 2]] for x in (j_hat, j))   # (B, L, F, 2)
     return (off_hat - off).norm(dim=-1).mean(-1)
+
+
+def pelvis_steps(joints: torch.Tensor) -> torch.Tensor:
+    """(B, L-1, 2) the pelvis's steps along the floor (x, z) between consecutive frames of bodies (B, L, J, 3)."""
+    return torch.diff(joints[..., PELVIS, :][..., [0, 2]], dim=1)
 
 
 def frame_mean(err: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:

@@ -44,6 +44,9 @@ class TrainConfig:
     # Weight of the foot-offset term: how far (m) the prediction's ankles and toes are from the
     # clean window's along the floor, each measured from its own pelvis (training/body_losses.py).
     w_foot_offset: float = 0.0
+    # Weight of the pace term: how far (m/s) the prediction's pelvis steps along the floor are
+    # from the clean window's, frame to frame (training/body_losses.py). 0 = off.
+    w_pace: float = 0.0
     w_planted_feet: float = 0.0
     geometry_weighting: str = "uniform"   # uniform | signal: each window by its share of signal ᾱ_t (body_losses.py)
     geometry_start: int = 0          # the step the geometry terms start at (0 before it) ...
@@ -80,7 +83,7 @@ class TrainConfig:
             r(f"train.{key}", getattr(self, key), 0, integer=True)
         r("train.lr", self.lr, 0, lo_open=True)   # no ceiling: lr=1e20 is how a diverging run is reproduced
         for key in ("weight_decay", "grad_clip", "pelvis_loss_weight", "hand_goal_weight", "w_bone_length",
-                    "w_planted_feet", "w_facing", "w_foot_height", "w_foot_offset"):
+                    "w_planted_feet", "w_facing", "w_foot_height", "w_foot_offset", "w_pace"):
             r(f"train.{key}", getattr(self, key), 0)
         for key in ("min_lr_ratio", "cond_drop_scene", "cond_drop_actions", "rollout_p"):
             r(f"train.{key}", getattr(self, key), 0, 1)

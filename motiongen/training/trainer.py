@@ -113,12 +113,12 @@ def _start_loop(run: Run) -> _Loop:
 def body_losses(run: Run) -> BodyLosses | None:
     """The geometry terms the config asks for, or None (every weight 0)."""
     tc, ws = run.tc, run.train_set
-    if max(tc.w_bone_length, tc.w_planted_feet, tc.w_facing, tc.w_foot_height, tc.w_foot_offset) <= 0:
+    if max(tc.w_bone_length, tc.w_planted_feet, tc.w_facing, tc.w_foot_height, tc.w_foot_offset, tc.w_pace) <= 0:
         return None
     weights = run.diffusion.alphas_cumprod if tc.geometry_weighting == "signal" else None   # (T,)
     return BodyLosses(ws.layout, ws.stats, run.ds.joint_set.parents, run.ds.fps / ws.cfg.stride,
                       tc.w_bone_length, tc.w_planted_feet, weights, tc.geometry_start, tc.geometry_ramp,
-                      tc.w_facing, tc.w_foot_height, tc.w_foot_offset)
+                      tc.w_facing, tc.w_foot_height, tc.w_foot_offset, tc.w_pace)
 
 
 def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
