@@ -101,8 +101,8 @@ def test_bad_values_are_config_errors_naming_the_key():
     assert loop_overrides({"hand_goal_on_arrival": "false"}) == {"hand_goal_on_arrival": False}
     assert loop_overrides({"reach_fraction": 1}) == {"reach_fraction": 1.0}
     for values, message in (({"smooth": -1}, "loop.smooth: expected a number >= 0, got -1"),
-                            ({"reach_fraction": 0}, r"loop.reach_fraction: expected a number in \(0, 10\], got 0"),
-                            ({"reach_fraction": 12}, r"loop.reach_fraction: expected a number in \(0, 10\], got 12"),
+                            ({"reach_fraction": 0}, r"loop.reach_fraction: expected a number > 0 and <= 10, got 0.0"),
+                            ({"reach_fraction": 12}, r"loop.reach_fraction: expected a number > 0 and <= 10, got 12.0"),
                             ({"foot_lock": "maybe"}, "loop.foot_lock: expected true or false, got 'maybe'"),
                             ({"foot_height": "floor"}, "loop.foot_height: expected one of network, body, free, got 'floor'"),
                             ({"warmup": 3}, "loop.warmup: not a key here")):

@@ -17,7 +17,7 @@ from motiongen.eval.pairs import SETTINGS, ProtocolConfig
 from motiongen.importers.sources import DataConfig
 from motiongen.loading.keys import CheckpointKeys
 from motiongen.sampling.assemble import SOLVE_METHODS
-from motiongen.sampling.sample_config import MAX_SAMPLES, check_sampler_settings
+from motiongen.sampling.sample_config import MAX_SAMPLES, check_loop, check_sampler_settings
 from motiongen.sampling.settings import CLEANUP_STAGES, LoopConfig, SamplerSettings
 
 
@@ -142,12 +142,11 @@ def loop_overrides(loop) -> dict:
     out = {k: v for k, v in asdict(loop).items() if v is not None}
     if "solve" in out:
         require_choice("loop.solve", out["solve"], SOLVE_METHODS)
-    LoopConfig(**out)                                    # its own checks (loop.foot_height), up front
+    loop_config = LoopConfig(**out)                      # its own checks (loop.foot_height), up front
     for key, value in out.items():
         if isinstance(value, float) and value < 0:
             raise ConfigError(f"loop.{key}: expected a number >= 0, got {value:g}")
-    if not 0 < out.get("reach_fraction", 1) <= 10:              # the range `sample` takes (sample_config)
-        raise ConfigError(f"loop.reach_fraction: expected a number in (0, 10], got {out['reach_fraction']:g}")
+    check_loop(loop_config)                              # the ranges `sample` takes (loop.reach_fraction)
     return out
 
 
