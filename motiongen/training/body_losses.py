@@ -117,7 +117,7 @@ class BodyLosses:
             out["foot_offset"] = (scale * self.w_foot_offset, frame_mean(foot_offsets(j_hat, j), frames))
         if self.w_pace > 0:
             err = (pelvis_steps(j_hat) - pelvis_steps(j)).norm(dim=-1) * self.fps               # (B, L-1)
-            w = torch.maximum(frames[:, 1:], frames[:, :-1])                                 # a free frame at either end
+            w = pair_weights(frames)                                                         # (B, L-1)
             out["pace"] = (scale * self.w_pace, (err * w).sum() / w.sum().clamp(min=1e-8))
         return out
 
@@ -130,7 +130,7 @@ class BodyLosses:
         feet = j_hat[..., list(self.layout.contact_joints), :]                            # (B, L, C, 3)
         speed = torch.diff(feet, dim=1).norm(dim=-1) * self.fps                           # (B, L-1, C)
         both = (planted[:, 1:] & planted[:, :-1]).to(speed.dtype)                          # (B, L-1, C)
-        w = both * torch.maximum(frames[:, 1:], frames[:, :-1])[..., None]
+        w = both * pair_weights(frames)[..., None]
         return (speed * w).sum() / w.sum().clamp(min=1e-8)
 
 
@@ -152,6 +152,12 @@ def foot_offsets(j_hat: torch.Tensor, j: torch.Tensor) -> torch.Tensor:
 def pelvis_steps(joints: torch.Tensor) -> torch.Tensor:
     """(B, L-1, 2) the pelvis's steps along the floor (x, z) between consecutive frames of bodies (B, L, J, 3)."""
     return torch.diff(joints[..., PELVIS, :][..., [0, 2]], dim=1)
+
+
+def pair_weights(frames: torch.Tensor) -> torch.Tensor:
+    """(B, L-1) the weight of each pair of consecutive frames: the larger of its two frames'
+    weights frames (B, L), so a step counts when either end is a free frame."""
+    return torch.maximum(frames[:, 1:], frames[:, :-1])
 
 
 def frame_mean(err: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
