@@ -29,7 +29,7 @@ from motiongen.skeleton import PELVIS
 
 SPEC = {"ckpt": (str, None, "a checkpoint: its speed on the data's windows"), "split": (str, "val", "the data's split"),
         "windows": (int, 400, "of the data's windows"), "steps": (int, 10, "DDIM steps")}
-USAGE = __doc__.splitlines()[-2].strip()
+USAGE = __doc__.strip().splitlines()[-1].strip()
 TRAVEL = 1.2          # m the data's pelvis goes over a window that walks at full speed
 WALKING = 0.3         # m/s: a frame walks when the pelvis's speed averaged over ±0.67 s is above this
 END = 4               # a window's last frames whose speed is compared

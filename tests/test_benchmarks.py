@@ -3,6 +3,7 @@ running on today's sampler: it builds its own model, outside `load_model`, so a 
 sampler starts to read (as the swing table did) breaks it silently. The toe-clearance script
 counts what it says on a hand-made motion."""
 
+import importlib
 import re
 import subprocess
 import sys
@@ -16,6 +17,16 @@ from tests.helpers import make_dataset
 from tests.test_sample_cli import _checkpoint
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def benchmark(name: str):
+    """The module benchmarks/<name>.py (the folder on sys.path only while it is imported, as the
+    scripts import their neighbours by name)."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
 
 
 def test_sample_benchmark_prints_a_row_with_the_full_clean_up(tmp_path):
@@ -40,11 +51,7 @@ def test_toe_clearance_counts_the_toes_that_move():
     """A toe gliding at 1 m/s 2 cm up, the other still: only the glide counts, at 0.02 m; lifted
     to 12 cm over its middle frames, those transitions count at the higher frame's height. The
     pelvis walking at 0.8 m/s is the speed each counted transition is binned by."""
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        from toe_clearance import fast_toe_heights
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
+    fast_toe_heights = benchmark("toe_clearance").fast_toe_heights
     from motiongen.metrics import TOE_JOINTS
     fps, T = 30.0, 11
     j = np.zeros((T, 22, 3))
@@ -63,11 +70,7 @@ def test_toe_clearance_counts_the_toes_that_move():
 def test_toe_clearance_travel_is_how_far_pelvis_and_toes_go():
     """A pelvis that moves 1.2 m with one toe stepping 0.9 m and the other still: pelvis 1.2,
     toes 0.45 (their mean); a window that comes back where it started travelled nothing."""
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        from toe_clearance import travel
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
+    travel = benchmark("toe_clearance").travel
     from motiongen.metrics import TOE_JOINTS
     j = np.zeros((2, 12, 22, 3))
     j[0, :, 0, 2] = np.linspace(0.0, 1.2, 12)
@@ -81,12 +84,9 @@ def test_chained_windows_hand_on_the_networks_own_frames(tmp_path):
     """Along a sequence, the chained network's window 2 starts with its own last 2 frames of
     window 1, in the world (the loop's hand-over); given the data's frames instead it starts
     with the data's. The first window is the same either way."""
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        from chained_windows import K, chain_starts, run_chains
-        from network_facing import model_and_data
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
+    chained = benchmark("chained_windows")
+    K, chain_starts, run_chains = chained.K, chained.chain_starts, chained.run_chains
+    model_and_data = benchmark("network_facing").model_and_data
     ckpt = _checkpoint(make_dataset(tmp_path / "ds", T=150) / "ckpt.pt")
     loaded, ds = model_and_data(str(ckpt))
     wd = WindowDataset(ds, "val", loaded.window, loaded.stats)
@@ -105,11 +105,7 @@ def test_seams_counts_skating_by_distance_to_an_episode_start(tmp_path):
     """Toes that slide fast and low only over frames 40-43 (an episode starts at 42): every
     skating transition lies within 3 frames of that seam, none elsewhere, at 30 fps and at the
     model's 10 fps (every third frame)."""
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        from seams import skating_near_seams
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
+    skating_near_seams = benchmark("seams").skating_near_seams
     from motiongen.metrics import TOE_JOINTS
     T = 90
     j = np.zeros((1, T, 22, 3), np.float32)
@@ -129,11 +125,7 @@ def test_seams_counts_skating_by_distance_to_an_episode_start(tmp_path):
 def test_seams_reports_the_loops_own_step_into_each_episode():
     """A pelvis that moves 1 cm per model frame and 20 cm into the first frame of each episode
     (output frames 30 and 60 at 30 fps, model frames 10 and 20 at 10 fps): 20 / 1 cm."""
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        from seams import seam_steps
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
+    seam_steps = benchmark("seams").seam_steps
     T = 90
     step = np.full(T // 3, 0.01)                                            # step[i]: into model frame i
     step[[10, 20]] = 0.20
@@ -149,11 +141,7 @@ def test_seams_measures_feet_behind_the_pelvis_on_walking_windows(capsys):
     """The data's toes under its pelvis as it walks 1.2 m; the network's stay where they start:
     0 cm for the data at every frame, for the network the pelvis's travel at that frame. A
     window that stands is not counted."""
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        from seams import feet_behind
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
+    feet_behind = benchmark("seams").feet_behind
     L = 13
     walk = np.zeros((L, 22, 3))
     walk[:, :, 2] = np.linspace(0, 1.2, L)[:, None]                         # everything moves 0.1 m per frame
@@ -168,20 +156,11 @@ def test_seams_measures_feet_behind_the_pelvis_on_walking_windows(capsys):
     assert re.search(r"network +10\.0 30\.0 60\.0 90\.0 120\.0", out), out
 
 
-def _window_speed():
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        import window_speed
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
-    return window_speed
-
-
 def test_window_speed_reads_the_pace_by_episode_phase():
     """Episodes of 42 output frames at 30 fps (21 model frames at 15 fps) after a 6-frame warm-up;
     the pelvis steps at 0.2 m/s over each episode's first 10 output frames and at 1.0 m/s after:
     model frames 0-4 read 0.2, 5-20 read 1.0 (the warm-up, shorter, is not counted)."""
-    ws = _window_speed()
+    ws = benchmark("window_speed")
     starts = np.array([0, 6, 48, 90, 132])
     T = 174
     v = np.ones(T - 1)
@@ -198,7 +177,7 @@ def test_window_speed_reads_the_pace_by_episode_phase():
 def test_window_speed_compares_the_walking_windows_frame_by_frame():
     """The data walks 1.2 m/s across 13 frames at 10 fps; the network the same until its last 4
     steps, at 0.3 m/s; a window that stands is not counted."""
-    ws = _window_speed()
+    ws = benchmark("window_speed")
     L = 13
     data = np.zeros((2, L, 22, 3))
     data[0, :, :, 2] = (np.arange(L) * 0.12)[:, None]
