@@ -247,6 +247,28 @@ def test_an_ablation_stage_with_nothing_to_act_on_is_the_output():
     assert all(stage_can_act(s, at(10), sit, loop) for s in ("projection", "foot_lock", "seam_blend", "swing_lift"))
 
 
+def test_each_sample_keeps_its_action_labels(ckpt, ds):
+    """`evaluate`'s results carry every kept sample's per-frame action, frame for frame with its
+    joints (what benchmarks/pskl_by_action.py cuts the chunks by): the warm-up's standing frames
+    the first episode pins, then the walk; the network's row reads the same labels."""
+    from motiongen.eval.protocol import evaluate, view
+    from motiongen.loading.build import load_model
+    from motiongen.sampling import SamplerSettings
+
+    loaded = load_model(str(ckpt))
+    cfg = ProtocolConfig(k=2, pairs=1, ablation_pairs=0, max_episodes=6)
+    ev = evaluate(loaded, ds, [92], cfg, ["static"], SamplerSettings("ddim", 2), progress=False)
+    (r,) = ev.results["static"]
+    names = list(loaded.action_names)
+    assert len(r.labels) == len(r.kept) == 2
+    for js, lab in zip(r.kept, r.labels):
+        assert lab.shape == (len(js),) and lab.dtype == np.int64
+        # standing (the warm-up's last frames, which the first episode pins), then walking
+        assert lab[0] == names.index("stand") and names.index("walk") in lab
+        assert set(lab) <= set(range(len(names)))
+    assert all(a is b for a, b in zip(view(r, "model_raw").labels, r.labels))
+
+
 def test_evaluate_over_several_checkpoints_reports_mean_and_spread(ckpt, tmp_path, capsys):
     """ckpt=[a,b]: the same recipe with another training seed; each figure is the mean of the two
     single-checkpoint evaluations, its spread their sample standard deviation, and the data row

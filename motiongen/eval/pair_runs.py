@@ -29,6 +29,7 @@ class Measured:
     kept: list[np.ndarray]              # k arrays (T_s, J, 3): each sample up to its finish
     apd: float
     completed: float                    # fraction of samples that reached the final goal
+    labels: list[np.ndarray] = field(default_factory=list)   # k arrays (T_s,) action index per kept frame, -1 none
 
 
 @dataclass
@@ -44,6 +45,7 @@ class PairResult:
     completed: float                    # fraction of samples that reached the final goal
     wall_s: float
     ablation: dict[str, Measured] = field(default_factory=dict)   # stage switched off -> the output without it
+    labels: list[np.ndarray] = field(default_factory=list)        # k arrays (T_s,) action index per kept frame
 
 
 def pair_loop(ctx: SceneContext, cfg: ProtocolConfig) -> LoopConfig:
@@ -91,7 +93,7 @@ def run_pair(loaded, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, sampler
                                    dataclasses.replace(loop, **CLEANUP_STAGES[s]))
             ablation[s] = measure(again, ctx, pair, cfg, meshes)
     return PairResult(pair, out.per_sample, raw.per_sample, out.apd, raw.apd, motion.joints, out.kept, raw.kept,
-                      out.completed, wall, {s: ablation[s] for s in stages})
+                      out.completed, wall, {s: ablation[s] for s in stages}, out.labels)
 
 
 def stage_can_act(stage: str, loaded, pair: Pair, loop: LoopConfig) -> bool:
@@ -124,7 +126,7 @@ def measure(motion: Motion, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, 
     names, actions = list(motion.joint_names), list(motion.action_names)
     joints = motion.joints_raw if raw else motion.joints                                    # (k, T, J, 3)
     boundaries = [int(b) for b in motion.episode_starts[1:]]
-    scores, kept = [], []
+    scores, kept, kept_labels = [], [], []
     for s in range(motion.num_samples):
         # A sample that finished early idles while the batch goes on: cut it at its finish so
         # the padding does not dilute its metrics (APD below uses the full, equal-length batch).
@@ -143,8 +145,9 @@ def measure(motion: Motion, ctx: SceneContext, pair: Pair, cfg: ProtocolConfig, 
         m.update(goal_metrics(js, motion.arrival_frame[s, -1], pair.goal.xz, pair.route.subgoals))
         scores.append(m)
         kept.append(js)
+        kept_labels.append(np.asarray(a, np.int64))
     apd = M.apd(joints) if motion.num_samples >= 2 else float("nan")
-    return Measured(scores, kept, apd, float(np.mean(motion.finish_frame >= 0)))
+    return Measured(scores, kept, apd, float(np.mean(motion.finish_frame >= 0)), kept_labels)
 
 
 def interaction_frames(labels, action_names, cfg: ProtocolConfig, oposes) -> list:

@@ -83,9 +83,9 @@ def view(r: PairResult, row: str) -> Measured:
     """One row's motions of a pair: "model" (the output), "model_raw" (the network's joints) or
     an ablated stage's output."""
     if row == "model":
-        return Measured(r.per_sample, r.kept, r.apd, r.completed)
+        return Measured(r.per_sample, r.kept, r.apd, r.completed, r.labels)
     if row == "model_raw":
-        return Measured(r.per_sample_raw, r.kept_raw, r.apd_raw, r.completed)
+        return Measured(r.per_sample_raw, r.kept_raw, r.apd_raw, r.completed, r.labels)
     return r.ablation[row]
 
 
