@@ -48,7 +48,7 @@ def band_power(motions, fps: float, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Per band (len(BANDS),): the share of acceleration power (mean over the 3J features of
     the normalised spectra PSKL compares) and the rms acceleration [m/s^2] (root of the mean
     over features of the band's power, Parseval-scaled)."""
-    from motiongen.eval.protocol import _chunks
+    from motiongen.eval.pskl_sets import _chunks
     chunks = _chunks(motions, n)
     acc = np.stack([np.diff(c, n=2, axis=0).reshape(n - 2, -1) for c in chunks]) * fps ** 2   # (N, E, F)
     power = np.mean(np.abs(np.fft.fft(acc, axis=1)) ** 2, axis=0)                             # (E, F)
@@ -67,7 +67,8 @@ def main(argv) -> None:
 
     from motiongen.importers.sources import open_dataset
     from motiongen.eval.pairs import ProtocolConfig
-    from motiongen.eval.protocol import evaluate, pskl_equal, reference_halves
+    from motiongen.eval.protocol import evaluate
+    from motiongen.eval.pskl_sets import pskl_equal, reference_halves
     from motiongen.eval.evaluate_config import dataset_config, loop_overrides
     from motiongen.sampling import SamplerSettings
     from motiongen.sampling.assemble import resample

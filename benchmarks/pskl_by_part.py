@@ -17,7 +17,8 @@ import warnings
 from motiongen.checks import require_choice
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.eval.pairs import ProtocolConfig
-from motiongen.eval.protocol import evaluate, pskl_equal, reference_halves
+from motiongen.eval.protocol import evaluate
+from motiongen.eval.pskl_sets import pskl_equal, reference_halves
 from motiongen.importers.sources import DataConfig, open_dataset
 from motiongen.loading.build import load_model
 from motiongen.sampling import SamplerSettings

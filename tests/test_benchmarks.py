@@ -209,30 +209,7 @@ def test_seam_and_toe_scripts_refuse_bad_input_in_one_line(tmp_path):
             assert any(word in err[0] for word in ("bogus", "abc", "none.npz", "usage", "episodes")), (script, argv, err)
 
 
-def test_pskl_by_action_compares_each_action_with_the_same_action_of_the_data():
-    """A chunk has an action when half its frames or more carry it, labels given as indices or
-    as one column per action; a generated set that is the data's second half reads 0 against
-    it where the data's halves differ; a steady walk reads its pace."""
-    mod, n, rng = benchmark("pskl_by_action"), 60, np.random.default_rng(0)
-    m = rng.normal(size=(130, 22, 3))
-    lab = np.full(130, -1)
-    lab[:30], lab[60:89] = 1, 1                        # chunk 0: exactly half; chunk 1: one frame short
-    onehot = np.zeros((130, 3), bool)
-    onehot[lab >= 0, 1] = True
-    for labels in (lab, onehot):
-        chunks = mod.labelled_chunks([m], [labels], n, 1)
-        assert len(chunks) == 1 and np.array_equal(chunks[0], m[:60])
-    assert mod.labelled_chunks([m], [lab], n, 0) == []
-
-    ref = [rng.normal(size=(120, 22, 3)).cumsum(0) for _ in range(4)]           # 2 chunks each
-    walking = [np.zeros(120, np.int64)] * 4
-    f = mod.action_pskl(ref[1::2], walking[:2], ref, walking, 0, n, 30.0)
-    assert (f["gen_chunks"], f["ref_chunks"], f["chunks"]) == (4, 8, 4)
-    np.testing.assert_allclose(f["gen"], 0.0, atol=1e-9)
-    assert min(f["floor"]) > 0.01
-    none = mod.action_pskl(ref[1::2], walking[:2], ref, walking, 2, n, 30.0)
-    assert none["gen"] is None and none["floor"] is None and none["chunks"] == 0
-
+def test_pskl_by_action_reads_the_walking_pace():
     walk = np.zeros((60, 22, 3))
     walk[:, 0, 0] = 0.02 * np.arange(60)                # 0.02 m a frame at 30 fps
-    np.testing.assert_allclose(mod.pace([walk], 30.0), [0.6])
+    np.testing.assert_allclose(benchmark("pskl_by_action").pace([walk], 30.0), [0.6])

@@ -153,6 +153,8 @@ def test_evaluate_end_to_end(ckpt, tmp_path):
         # every row is measured on a body mesh (the data and the network's joints on a body put on them)
         for row in ("model", "model_raw", "reference"):
             assert block[row]["mesh_penetration_frames"] is not None and "mesh_contact_rate" in block[row]
+            # PSKL by action: a figure, or None where a set has too few chunks of it
+            assert {"pskl_walk_gen_ref", "pskl_sit_ref_gen", "pskl_pick_up_gen_ref"} <= set(block[row]), row
         check_ablation(block, keys, st)
         assert f"## {st} setting" in md and (out / "plots" / f"{st}_scene92.png").is_file()
     # two tables (Body, Task) per setting, each with a model, network and reference row

@@ -10,7 +10,7 @@ import trimesh
 from motiongen.body.model import BodyParams, load_body_model
 from motiongen.eval.mesh_scores import BodyMeshes, InteractionObject, hand_object, pooled, seat_contact
 from motiongen.eval.motion_scores import only_during
-from motiongen.eval.protocol import even_subset, pskl_equal, reference_halves
+from motiongen.eval.pskl_sets import even_subset, pskl_equal, reference_halves
 from motiongen.annotation.vertex_contact import SceneTargets
 from motiongen.scene.distance_field import MeshField, PlaneField
 from motiongen.skeleton import BODY

@@ -104,6 +104,7 @@ def goal_metrics(joints, arrival: int, goal_xz, subgoals) -> dict:
 class ReferenceResult:
     per_sequence: list[dict]
     motions: list[np.ndarray]           # (T_i, J, 3) per sequence
+    labels: list[np.ndarray] = field(default_factory=list)   # (T_i, A) bool per sequence: its actions
 
 
 def data_interactions(ctx: SceneContext, seq, labels, cfg: ProtocolConfig) -> list[tuple[np.ndarray, InteractionObject]]:
@@ -141,7 +142,7 @@ def reference_metrics(ctx: SceneContext, setting: str, cfg: ProtocolConfig, epis
     object at the data's per-frame poses. meshes: put the data on a body for the mesh figures."""
     ds = ctx.ds
     names = list(ds.joint_set.names)
-    out, motions = [], []
+    out, motions, labels = [], [], []
     for seq in ctx.sequences:
         j = np.asarray(ds.joints[seq.start:seq.end], np.float64)
         lab = np.asarray(ds.actions[seq.start:seq.end], bool)
@@ -158,4 +159,5 @@ def reference_metrics(ctx: SceneContext, setting: str, cfg: ProtocolConfig, epis
                                                 for f, o in inter]))
         out.append(m)
         motions.append(j.astype(np.float32))
-    return ReferenceResult(out, motions)
+        labels.append(lab)
+    return ReferenceResult(out, motions, labels)

@@ -32,6 +32,7 @@ from motiongen.eval.mesh_scores import BodyMeshes, pooled
 from motiongen.eval.motion_scores import ReferenceResult, reference_metrics
 from motiongen.eval.pair_runs import Measured, PairResult, run_pair
 from motiongen.eval.pairs import SETTINGS, Pair, ProtocolConfig, make_pairs
+from motiongen.eval.pskl_sets import action_figures, by_action_keys, pskl_equal, reference_halves
 from motiongen.eval.scene_context import SceneContext
 from motiongen.rates import DATA_FPS
 from motiongen.sampling import SamplerSettings
@@ -39,39 +40,6 @@ from motiongen.sampling import SamplerSettings
 
 # ---------------------------------------------------------------------------------------
 # Aggregation
-
-
-def _chunks(motions, n: int) -> list[np.ndarray]:
-    """Non-overlapping n-frame chunks of every motion (PSKL needs one length)."""
-    return [m[i:i + n] for m in motions for i in range(0, len(m) - n + 1, n)]
-
-
-def even_subset(items: list, m: int) -> list:
-    """m of the items, evenly spaced over the list (all of them when m >= len)."""
-    if m >= len(items):
-        return list(items)
-    return [items[i] for i in np.linspace(0, len(items), m, endpoint=False).astype(np.int64)]
-
-
-def reference_halves(ref_motions, n: int) -> tuple[list, list]:
-    """The reference's n-frame chunks in two halves of equal size: the chunks of every other
-    sequence (whole sequences, so no chunk has its neighbour in the other half), the larger
-    half evenly thinned to the smaller one's size."""
-    a, b = _chunks(ref_motions[0::2], n), _chunks(ref_motions[1::2], n)
-    m = min(len(a), len(b))
-    return even_subset(a, m), even_subset(b, m)
-
-
-def pskl_equal(gen, ref_half, fps: float, n: int) -> tuple[float, float, int]:
-    """PSKL between the generated motions' chunks and a reference half, both thinned to the
-    same number of chunks (the estimate's bias depends on the set sizes, so a model and the
-    reference's own floor are compared at one size). Returns (PSKL(gen,ref), PSKL(ref,gen), chunks)."""
-    g = _chunks(gen, n)
-    m = min(len(g), len(ref_half))
-    if not m:
-        return float("nan"), float("nan"), 0
-    kab, kba = M.pskl(even_subset(g, m), even_subset(ref_half, m), fps, length=n)
-    return kab, kba, m
 
 
 BODY_KEYS = ("bone_cv", "bone_max_dev", "slide_mps", "foot_skating", "toe_height_m", "heading_deg", "knee_walk_deg",
@@ -89,12 +57,22 @@ def view(r: PairResult, row: str) -> Measured:
     return r.ablation[row]
 
 
-def summarize_model(results: list[PairResult], ref_motions: list[np.ndarray], fps: float,
+@dataclass
+class RefSet:
+    """What a model row's PSKL is measured against: the scenes' data, labelled."""
+    motions: list[np.ndarray]           # (T_i, J, 3) per sequence
+    labels: list[np.ndarray]            # (T_i, A) bool per sequence, columns `names`
+    names: list[str]                    # the data's action names
+    model_names: list[str]              # the checkpoint's action names (the generated labels index them)
+
+
+def summarize_model(results: list[PairResult], ref: RefSet, fps: float,
                     cfg: ProtocolConfig, raw: bool = False, row: str | None = None) -> dict:
     """Setting-level numbers for the model row (means over samples; contact pooled over frames).
     raw: the row of the network's own joints instead of the output motions; row: any `view`
     (an ablated stage: over the pairs that have it). Goal success counts the body (hips
-    midpoint), which no pin can put on the goal."""
+    midpoint), which no pin can put on the goal. PSKL over every chunk, and by action
+    (`pskl_sets.action_figures`: each action's chunks against the data's of the same action)."""
     row = row or ("model_raw" if raw else "model")
     views = [view(r, row) for r in results if row in ("model", "model_raw") or row in r.ablation]
     samples = [m for v in views for m in v.per_sample]
@@ -111,31 +89,34 @@ def summarize_model(results: list[PairResult], ref_motions: list[np.ndarray], fp
     out["contact_rate"] = hits / frames if frames else float("nan")
     out.update(pooled(samples))
     out["apd_m"] = M.finite_mean(v.apd for v in views)
-    _, half = reference_halves(ref_motions, cfg.pskl_frames)
-    out["pskl_gen_ref"], out["pskl_ref_gen"], out["pskl_chunks"] = pskl_equal(
-        [x for v in views for x in v.kept], half, fps, cfg.pskl_frames)
+    _, half = reference_halves(ref.motions, cfg.pskl_frames)
+    kept, labels = [x for v in views for x in v.kept], [x for v in views for x in v.labels]
+    out["pskl_gen_ref"], out["pskl_ref_gen"], out["pskl_chunks"] = pskl_equal(kept, half, fps, cfg.pskl_frames)
+    out.update(by_action_keys(action_figures(kept, labels, ref.model_names, ref.motions, ref.labels, ref.names,
+                                             cfg.pskl_frames, fps), "gen"))
     out["completed"] = M.finite_mean(v.completed for v in views)
     out["n_pairs"], out["n_samples"] = len(views), len(samples)
     out["seconds_per_pair"] = M.finite_mean(r.wall_s for r in results)
     return out
 
 
-def summarize_ablation(results: list[PairResult], ref_motions, fps: float, cfg: ProtocolConfig) -> dict:
+def summarize_ablation(results: list[PairResult], ref: RefSet, fps: float, cfg: ProtocolConfig) -> dict:
     """The ablation table of a setting: the output and the network's joints on the pairs that
     were ablated, and the output without each stage on the same pairs ({} when none was)."""
     subset = [r for r in results if r.ablation]
     if not subset:
         return {}
-    out = {"model": summarize_model(subset, ref_motions, fps, cfg),
-           "model_raw": summarize_model(subset, ref_motions, fps, cfg, raw=True)}
+    out = {"model": summarize_model(subset, ref, fps, cfg),
+           "model_raw": summarize_model(subset, ref, fps, cfg, raw=True)}
     for stage in subset[0].ablation:
-        out[stage] = summarize_model(subset, ref_motions, fps, cfg, row=stage)
+        out[stage] = summarize_model(subset, ref, fps, cfg, row=stage)
     return out
 
 
-def summarize_reference(refs: list[ReferenceResult], fps: float, cfg: ProtocolConfig) -> dict:
+def summarize_reference(refs: list[ReferenceResult], fps: float, cfg: ProtocolConfig, names=()) -> dict:
     """The reference row: per-sequence means; goal metrics and APD are n/a (see docs/evaluation.md);
-    PSKL between two halves of the sequences (alternating), the noise floor of the metric."""
+    PSKL between two halves of the sequences (alternating), the noise floor of the metric, over
+    every chunk and by action (`names`: the data's action names, the labels' columns)."""
     seqs = [m for r in refs for m in r.per_sequence]
     motions = [x for r in refs for x in r.motions]
     if not seqs:
@@ -150,6 +131,9 @@ def summarize_reference(refs: list[ReferenceResult], fps: float, cfg: ProtocolCo
     out.update(pooled(seqs))
     a, b = reference_halves(motions, cfg.pskl_frames)
     out["pskl_gen_ref"], out["pskl_ref_gen"], out["pskl_chunks"] = pskl_equal(a, b, fps, cfg.pskl_frames)
+    labels = [x for r in refs for x in r.labels]
+    out.update(by_action_keys(action_figures([], [], list(names), motions, labels, list(names), cfg.pskl_frames, fps),
+                              "floor"))
     out["n_sequences"] = len(seqs)
     out["n_frames"] = int(sum(len(x) for x in motions))
     return out
@@ -217,10 +201,12 @@ def evaluate(loaded, ds, scene_ids, cfg: ProtocolConfig, settings=SETTINGS, samp
         bar.close()
     ep = episode_frames(loaded, ds.fps)
     refs = {st: [reference_metrics(ctxs[sid], st, cfg, ep, meshes) for sid in ctxs] for st in settings}
-    ref_motions = [m for r in refs[settings[0]] for m in r.motions] if settings else []
-    model = {st: summarize_model(results[st], ref_motions, ds.fps, cfg) for st in settings}
-    model_raw = {st: summarize_model(results[st], ref_motions, ds.fps, cfg, raw=True) for st in settings}
-    reference = {st: summarize_reference(refs[st], ds.fps, cfg) for st in settings}
-    ablation = {st: summarize_ablation(results[st], ref_motions, ds.fps, cfg) for st in settings}
+    first = refs[settings[0]] if settings else []
+    ref = RefSet([m for r in first for m in r.motions], [x for r in first for x in r.labels], list(ds.action_names),
+                 names)
+    model = {st: summarize_model(results[st], ref, ds.fps, cfg) for st in settings}
+    model_raw = {st: summarize_model(results[st], ref, ds.fps, cfg, raw=True) for st in settings}
+    reference = {st: summarize_reference(refs[st], ds.fps, cfg, ds.action_names) for st in settings}
+    ablation = {st: summarize_ablation(results[st], ref, ds.fps, cfg) for st in settings}
     return Evaluation(list(settings), pairs, results, refs, model, reference, model_raw, ablation, ctxs, notes,
                       time.perf_counter() - t0)

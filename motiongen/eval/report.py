@@ -160,6 +160,7 @@ def markdown(report: dict, plots: bool = True) -> str:
                     continue
                 lines.append(f"| {name} | " + " | ".join(_cell(block, key, k, u) for k, _, u, _ in keys) + " |")
             lines.append("")
+        lines += action_table(block)
         lines += ablation_table(st, block)
         lines += [f"![{st} metrics](plots/{st}_metrics.png)", ""] if plots else []
     if report["notes"]:
@@ -168,6 +169,27 @@ def markdown(report: dict, plots: bool = True) -> str:
         lines += ["Trajectory figures: `plots/<setting>_scene<id>.png` (map, A* path, start ●, goal ★ / "
                   "interaction ■, object ▲, the k pelvis tracks).", ""]
     return "\n".join(lines)
+
+
+def action_table(block: dict) -> list[str]:
+    """PSKL by action (`pskl_sets.action_figures`) as markdown lines: each action that some row
+    has a figure for, the output and the network's joints against the data's chunks of the same
+    action, the reference row the data's split-half value for it ([] when no action has one)."""
+    stems = [k[:-len("_gen_ref")] for k in (block.get("reference") or {})
+             if k.startswith("pskl_") and k.endswith("_gen_ref") and k != "pskl_gen_ref"]
+    rows = (("model", "model"), ("model_raw", "network joints"), ("reference", "reference"))
+    stems = [x for x in stems if any((block.get(r) or {}).get(x + "_gen_ref") is not None for r, _ in rows[:2])]
+    if not stems:
+        return []
+    cols = [(x + d, f"{x[len('pskl_'):].replace('_', ' ')} {lab}") for x in stems
+            for d, lab in (("_gen_ref", "(gen,ref)"), ("_ref_gen", "(ref,gen)"))]
+    lines = ["Each action's 2 s chunks against the data's chunks of the same action (PSKL over every chunk mixes "
+             "actions; docs/evaluation.md):", "",
+             "| PSKL by action [nats] | " + " | ".join(f"{lab} ↓" for _, lab in cols) + " |",
+             "|---|" + "---:|" * len(cols)]
+    for key, name in rows:
+        lines.append(f"| {name} | " + " | ".join(_cell(block, key, k, "nats") for k, _ in cols) + " |")
+    return lines + [""]
 
 
 def ablation_table(setting: str, block: dict) -> list[str]:
