@@ -312,6 +312,9 @@ def test_several_checkpoints_average_the_ablation_rows_too():
 
     agg = aggregate_reports([report("a", 0.1), report("b", 0.3)])["settings"]["static"]
     assert agg["ablation"]["foot_lock"]["foot_skating"] == pytest.approx(0.6)
+    # one value from every checkpoint: that value, no spread (the mean of three 0.0859s is not 0.0859)
+    same = aggregate_reports([report(c, 0.0859) for c in "abc"])["settings"]["static"]
+    assert same["model"]["foot_skating"] == 0.0859 and same["spread"]["model"]["foot_skating"] == 0.0
     assert agg["ablation_spread"]["foot_lock"]["foot_skating"] == pytest.approx(0.6 / np.sqrt(2))
     assert agg["ablation"]["model_raw"]["foot_skating"] == pytest.approx(0.4)
 

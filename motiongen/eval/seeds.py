@@ -29,6 +29,10 @@ def _stats(values: list) -> tuple[float | None, float | None]:
     x = np.array([v for v in values if v is not None], np.float64)
     if not len(x):
         return None, None
+    if len(x) > 1 and np.ptp(x) == 0:
+        # the same value from every checkpoint (the data's row): no spread, where the mean's
+        # rounding would leave 1e-17 of one that report.md prints
+        return float(x[0]), 0.0
     return float(x.mean()), (float(x.std(ddof=1)) if len(x) > 1 else None)
 
 
