@@ -36,7 +36,11 @@ def reference_halves(ref_motions, n: int) -> tuple[list, list]:
     """The reference's n-frame chunks in two halves of equal size: the chunks of every other
     sequence (whole sequences, so no chunk has its neighbour in the other half), the larger
     half evenly thinned to the smaller one's size."""
-    a, b = _chunks(ref_motions[0::2], n), _chunks(ref_motions[1::2], n)
+    return _equal_size(_chunks(ref_motions[0::2], n), _chunks(ref_motions[1::2], n))
+
+
+def _equal_size(a: list, b: list) -> tuple[list, list]:
+    """Both lists evenly thinned to the shorter one's length."""
     m = min(len(a), len(b))
     return even_subset(a, m), even_subset(b, m)
 
@@ -68,10 +72,8 @@ def labelled_chunks(motions, labels, n: int, action: int) -> list[np.ndarray]:
 def action_halves(ref, ref_labels, n: int, action: int) -> tuple[list, list]:
     """`reference_halves` of the data's chunks with `action` (`labelled_chunks`; ref_labels
     per sequence (T_i, A) bool or (T_i,) int)."""
-    a = labelled_chunks(ref[0::2], ref_labels[0::2], n, action)
-    b = labelled_chunks(ref[1::2], ref_labels[1::2], n, action)
-    m = min(len(a), len(b))
-    return even_subset(a, m), even_subset(b, m)
+    return _equal_size(labelled_chunks(ref[0::2], ref_labels[0::2], n, action),
+                       labelled_chunks(ref[1::2], ref_labels[1::2], n, action))
 
 
 def action_key(name: str) -> str:
