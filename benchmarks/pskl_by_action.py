@@ -23,7 +23,7 @@ import numpy as np
 from motiongen.cli import parse_key_values, tool_main
 from motiongen.eval.pairs import ProtocolConfig
 from motiongen.eval.protocol import evaluate
-from motiongen.eval.pskl_sets import action_figures, labelled_chunks, pskl_equal, reference_halves
+from motiongen.eval.pskl_sets import action_figures, labelled_chunks
 from motiongen.importers.sources import DataConfig, open_dataset
 from motiongen.loading.build import load_model
 from motiongen.sampling import SamplerSettings
@@ -70,9 +70,9 @@ def run(argv: list[str]) -> None:
             if f["gen_chunks"] or f["half_chunks"]:
                 print(f"{pad} {name:10s} {f['gen_chunks']:13d} {f['half_chunks']:11d} {f['chunks']:8d} "
                       f"{cells(f['gen'], f['floor'])}")
-        a, b = reference_halves(ref, n)
-        x, y, m = pskl_equal(gen, b, ds.fps, n)
-        print(f"{pad} {'every chunk (evaluate)':36s} {m:8d} {cells((x, y), pskl_equal(a, b, ds.fps, n)[:2])}")
+        out, data = ev.model[setting], ev.reference[setting]          # evaluate's own figures over every chunk
+        print(f"{pad} {'every chunk (evaluate)':36s} {out['pskl_chunks']:8d} "
+              f"{cells((out['pskl_gen_ref'], out['pskl_ref_gen']), (data['pskl_gen_ref'], data['pskl_ref_gen']))}")
         if "walk" in names:
             for tag, ms, ls, w in (("output", gen, gen_labels, names.index("walk")),
                                    ("data", ref, ref_labels, list(ds.action_names).index("walk"))):
