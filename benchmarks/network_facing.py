@@ -33,6 +33,7 @@ from motiongen.loading.build import load_model, sample_windows
 from motiongen.metrics import heading_off_travel_angles
 from motiongen.skeleton import LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 
+TURNING_DEG = 30                     # a window whose body turns this much from its first frame to its last
 SPEC = {"ckpt": (str, None), "split": (str, "val"), "windows": (int, 200), "steps": (int, 10)}
 
 
@@ -61,14 +62,20 @@ def random_windows(loaded, ds, split: str, n: int) -> dict:
     return {k: torch.stack([it[k] for it in items]) for k in items[0]}
 
 
-def predict_on_windows(loaded, ds, split: str, n: int, steps: int) -> tuple[np.ndarray, np.ndarray, float]:
+def predict_on_windows(loaded, ds, split: str, n: int, steps: int,
+                       facing: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
     """The data's joints and the network's on up to n windows of `split`, each (B, L, J, 3) in
     metres, and their frame rate. The network is given what the sampler gives a walking episode:
-    the window's first 2 frames and its last-frame pelvis x, z (DDIM-`steps`, fixed noise)."""
+    the window's first 2 frames and its last-frame pelvis x, z (DDIM-`steps`, fixed noise);
+    with `facing`, also the data's last-frame facing (a model trained with `mask.p_facing`)."""
     batch = random_windows(loaded, ds, split, n)
     x0 = batch["motion"]                                                                       # (B, L, D)
+    goal = None
+    if facing:
+        yaw = facing_yaw(loaded.layout.decode(loaded.stats.denormalize(x0))[0][:, -1])          # (B,)
+        goal = torch.stack([torch.sin(yaw), torch.cos(yaw)], -1).float()
     x = sample_windows(loaded.model, loaded.diffusion, batch, loaded.config, loaded.device,
-                       torch.Generator().manual_seed(0), steps)
+                       torch.Generator().manual_seed(0), steps, goal)
     data, net = (loaded.layout.decode(loaded.stats.denormalize(m))[0].numpy().astype(np.float64) for m in (x0, x))
     return data, net, ds.fps / loaded.window.stride
 
@@ -95,8 +102,22 @@ def run(argv: list[str]) -> None:
               f"{quartiles(shoulders, '°')} by the shoulders")
         print(f"  {name}: hips {quartiles(100 * width[:, 2:].ravel(), ' cm')} apart on the free frames "
               f"(spread within a window {100 * width[:, 2:].std(1).mean():.2f} cm)")
-    yaw = facing_yaw(np.stack([rows["the data"][:, -1], rows["the network"][:, -1]]))        # (2, B)
-    print(f"  the last frame's facing (hips) is {quartiles(yaw_apart(yaw[1], yaw[0]), '°')} off the data's")
+    last_frame_facing(data, net, "")
+    if loaded.mask.p_facing > 0:
+        _, given, _ = predict_on_windows(loaded, ds, opts["split"], opts["windows"], opts["steps"], facing=True)
+        last_frame_facing(data, given, ", given the data's as a facing goal")
+
+
+def last_frame_facing(data: np.ndarray, net: np.ndarray, given: str) -> None:
+    """Print how far the network's last-frame facing (hips) is from the data's, over all windows
+    (N, L, J, 3) and over those whose body turns by 30° or more from its first frame."""
+    yaw = facing_yaw(np.stack([data[:, -1], net[:, -1]]))                                     # (2, B)
+    off = yaw_apart(yaw[1], yaw[0])
+    turn = yaw_apart(facing_yaw(data[:, -1]), facing_yaw(data[:, 0]))                         # (B,)
+    turning = turn >= TURNING_DEG
+    on_turns = f"{quartiles(off[turning], '°')}" if turning.any() else "none"
+    print(f"  the last frame's facing (hips) is {quartiles(off, '°')} off the data's{given}; "
+          f"{on_turns} on the {int(turning.sum())} windows turning by {TURNING_DEG}° or more")
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import pytest
 import torch
@@ -345,3 +346,41 @@ def test_skip_output_is_the_input_where_the_network_says_nothing():
     assert float(model.skip[0, 0]) > 0.99
     with pytest.raises(ValueError, match="schedule"):
         build_model(model_config("tiny", skip_sigma_data=0.4), J, A, L)
+
+
+def test_facing_goal_reaches_the_last_frame_and_a_sample_without_one_gets_the_null():
+    """A model built with a facing goal: a given facing changes the window's output (most at its
+    last frame, where it enters), another facing changes it again, and a sample not given one is
+    computed exactly as with no facing at all; a model built without one has no such input."""
+    torch.manual_seed(0)
+    model = build_model(model_config("tiny"), J, A, L, facing_goal=True).eval()
+    B = 2
+    x, t, base = torch.randn(B, L, J * 3), torch.randint(0, 100, (B,)), _cond(B)
+    ahead = torch.tensor([[0.0, 1.0], [0.0, 1.0]])                    # (sin, cos): yaw 0
+    left = torch.tensor([[1.0, 0.0], [1.0, 0.0]])                     # yaw 90 degrees
+    run = lambda facing, given=None: model(x, t, replace(base, facing=facing, facing_given=given))  # noqa: E731
+    with torch.no_grad():
+        none, a, b = run(None), run(ahead), run(left)
+        mixed = run(left, torch.tensor([True, False]))
+    assert (a - none).abs().amax() > 1e-3 and (b - a).abs().amax() > 1e-3
+    assert torch.equal(mixed[1], none[1]) and torch.equal(mixed[0], b[0])
+    assert build_model(model_config("tiny"), J, A, L).facing_embed is None
+    enc = model.encode_condition(replace(base, facing=left)).concat(model.encode_condition(replace(base, facing=ahead)))
+    assert enc.last_frame.shape == (2 * B, model.cfg.width)
+    with pytest.raises(ValueError, match="one half only"):
+        enc.concat(build_model(model_config("tiny"), J, A, L).eval().encode_condition(base))
+
+
+def test_a_facing_goal_stays_through_guidance_and_batching():
+    """Classifier-free guidance's unconditional twin drops the scene and the actions but keeps the
+    facing goal (a goal, like the known entries); concatenating two conditions stacks their
+    facings and given flags, and one with a facing cannot be stacked with one without."""
+    B = 2
+    cond = replace(_cond(B), facing=torch.tensor([[1.0, 0.0], [0.0, 1.0]]), facing_given=torch.tensor([True, False]))
+    twin = cond.drop_all()
+    assert twin.drop_scene.all() and twin.drop_actions.all() and torch.equal(twin.facing, cond.facing)
+    both = cond.concat(twin)
+    assert both.facing.shape == (2 * B, 2) and both.facing_given.tolist() == [True, False, True, False]
+    with pytest.raises(ValueError, match="facing"):
+        cond.concat(_cond(B))
+    assert Condition(facing=cond.facing).drop_all().drop_scene.shape == (B,)

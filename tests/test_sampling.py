@@ -386,3 +386,40 @@ def test_the_episode_that_arrives_at_a_pick_up_is_given_its_hand_goal():
     assert 0.03 < walks[-1] < 0.04 and np.all(walks[:-1] > 0.3), walks
     m, cup_pts = _pick_up_a_cup(0.5, hand_goal_on_arrival=False)
     assert np.all(_wrist_to_cup(m, cup_pts, "walk") > 0.3)
+
+
+def _facings_asked(**loop_kw) -> tuple:
+    """(the motion, the facing goal given in each denoising call) of the cup's pick-up
+    (`_pick_up_a_cup`) by a checkpoint trained with one (mask.p_facing > 0): (S, 2) (sin, cos),
+    NaN where not given, or None when the call has no facing at all."""
+    class Recording(Oracle):
+        def forward(self, x_t, t, cond, known_mask=None):
+            self.conditions.append(None if cond.facing is None else
+                                   torch.where(cond.facing_given[:, None], cond.facing, torch.nan).numpy())
+            return super().forward(x_t, t, cond, known_mask)
+
+    loaded = _loaded(Recording, predict_goal=True)
+    loaded.action_names = ["walk", "sit", "pick up"]
+    loaded.mask = MaskConfig(max_transition=2, p_hand=0.5, hand_joints=HAND_JOINTS, p_facing=0.5)
+    cup = OccupancyGrid.from_dense(np.ones((8, 10, 8), bool), [-0.04, 0.0, -0.04], 0.01)
+    pose = np.eye(4)
+    pose[:3, 3] = [0.7, 0.9, 2.0]
+    m = _generate(loaded, [Goal([0.0, 2.0], "pick up", 3.0)], objects=[(cup, pose)],
+                  generator=torch.Generator().manual_seed(0), sampler=SamplerSettings("ddim", 2),
+                  loop=LoopConfig(stall_s=None, project=False, **loop_kw))
+    return m, loaded.model.conditions
+
+
+def test_episodes_with_a_hand_goal_ask_a_facing_checkpoint_to_face_the_object():
+    """The cup stands 0.7 m to the +x side of the pick-up's spot (0, 2), which the body walks to
+    along +z: the pick-up's episodes ask the body to end facing +x, yaw 90 degrees in the window
+    frame, (sin, cos) = (1, 0), within 6 degrees (from the episode's pelvis goal, a few cm from
+    the spot); the walking episodes ask nothing, the one that walks onto the spot with the hand
+    goal included. loop.facing_goal=false asks nothing anywhere."""
+    m, asked = _facings_asked()
+    kinds = [e.kind for e in m.episodes for _ in range(2)]                             # DDIM-2: two calls each
+    given = [f[0] for f in asked if f is not None and np.isfinite(f[0, 0])]
+    assert all(f is not None for f in asked) and len(asked) == len(kinds)
+    assert [np.isfinite(f[0, 0]) for f in asked] == [k == "act" for k in kinds] and "act" in kinds
+    np.testing.assert_allclose(given, [[1.0, 0.0]] * len(given), atol=0.1)
+    assert all(f is None for f in _facings_asked(facing_goal=False)[1])

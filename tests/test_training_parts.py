@@ -1,16 +1,20 @@
 import itertools
+from dataclasses import asdict
 
 import numpy as np
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 from motiongen.data.representation import Layout
-from motiongen.data.windows import NormStats
-from motiongen.diffusion import MaskConfig
+from motiongen.data.windows import NormStats, WindowConfig
+from motiongen.diffusion import DiffusionConfig, MaskConfig
 from motiongen.diffusion.masks import known_mask
-from motiongen.errors import MotiongenError
-from motiongen.loading.build import acting_hands, hand_goal_weights
+from motiongen.errors import ConfigError, MotiongenError
+from motiongen.geometry import yaw_matrix
+from motiongen.loading.build import acting_hands, build_from_config, facing_goals, hand_goal_weights
 from motiongen.loading.checkpoint import load_checkpoint, save_checkpoint
+from motiongen.models import model_config
 from motiongen.skeleton import BODY
 from motiongen.training.data_order import ResumableBatchSampler
 from motiongen.training.ema import EMA
@@ -141,3 +145,30 @@ def test_resume_restores_rngs_and_reseeds_noise_from_another_device(capsys):
     set_rng_state(foreign, b, step=11000)
     assert "reseeded at step 11000" in capsys.readouterr().out
     torch.testing.assert_close(torch.randn(4, generator=a), torch.randn(4, generator=b))   # deterministic
+
+
+def test_facing_goals_give_the_last_frames_yaw_and_draw_nothing_when_off():
+    """Window 0 ends turned 90 degrees to its left (facing +x), window 1 as it began (+z): the
+    facing goal is (sin, cos) of the last frame's yaw; with mask.p_facing 1 every window is
+    given one, with 0 none is and the generator is left as it was."""
+    L = 4
+    joints = np.repeat(np.repeat(REST[None, None], L, 1), 2, 0).astype(np.float64)      # (2, L, 22, 3)
+    joints[0, -1] = REST @ yaw_matrix(np.pi / 2).T                                      # the last frame turned to +x
+    layout, stats = Layout(22), NormStats(np.zeros(66, np.float32), np.ones(66, np.float32))
+    batch = {"motion": torch.from_numpy(joints.reshape(2, L, 66).astype(np.float32))}
+    gen = torch.Generator().manual_seed(0)
+    facing, given = facing_goals(MaskConfig(p_facing=1.0), batch, layout, stats, gen)
+    assert torch.allclose(facing, torch.tensor([[1.0, 0.0], [0.0, 1.0]]), atol=1e-6) and given.all()
+    state = gen.get_state()
+    assert facing_goals(MaskConfig(), batch, layout, stats, gen) is None
+    assert torch.equal(gen.get_state(), state)
+
+
+def test_a_facing_goal_builds_its_input_and_a_bad_probability_is_one_line():
+    def build(p):
+        cfg = OmegaConf.create({"model": asdict(model_config("tiny", use_scene=False)), "diffusion": asdict(DiffusionConfig()),
+                                "window": asdict(WindowConfig(scene=False)), "mask": asdict(MaskConfig(p_facing=p))})
+        return build_from_config(cfg, BODY, ["walk", "pick up"])[0]
+    assert build(0.5).facing_embed is not None and build(0.0).facing_embed is None
+    with pytest.raises(ConfigError, match=r"mask\.p_facing: expected a probability in 0\.\.1, got 1\.5"):
+        build(1.5)

@@ -48,6 +48,7 @@ class LoopOverrides:
     swing_lift: bool | None = None  # false: a swing stays as low as the network drew it (no data-height arc)
     seat_shift: bool | None = None  # false: seated bodies are not moved onto their seats
     hand_goal_on_arrival: bool | None = None  # false: only the pick-up's own episodes get the hand goal
+    facing_goal: bool | None = None  # false: a checkpoint trained with a facing goal is not given one
     reach_fraction: float | None = None  # the look-ahead's reach: this x the training windows' farthest pelvis offset
 
 

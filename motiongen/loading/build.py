@@ -13,6 +13,7 @@ from motiongen.data.windows import NormStats, WindowConfig
 from motiongen.diffusion import DiffusionConfig, GaussianDiffusion, sample
 from motiongen.diffusion.masks import MaskConfig, predicts_goal, replace_mask, sample_known_mask
 from motiongen.errors import ConfigError, DataError, MotiongenError
+from motiongen.geometry import facing_yaw
 from motiongen.importers.sources import DataConfig
 from motiongen.loading.checkpoint import load_checkpoint
 from motiongen.models import Condition, ModelConfig, build_model
@@ -62,9 +63,12 @@ def build_from_config(cfg, joint_set: JointSet, action_names: list[str]):
                           f"skip; diffusion.prediction={dcfg.prediction}")
     layout = Layout.for_window(w, joint_set)
     diffusion = GaussianDiffusion(dcfg)
+    p_facing = mask_config(cfg).p_facing
+    if not 0 <= p_facing <= 1:
+        raise ConfigError(f"mask.p_facing: expected a probability in 0..1, got {p_facing}")
     model = build_model(mcfg, num_joints=joint_set.num_joints, num_actions=len(action_names), window=w.length,
                         scene_res=(w.grid_res[1], w.grid_res[0], w.grid_res[2]), channels=layout.channels,
-                        alphas_cumprod=diffusion.alphas_cumprod)
+                        alphas_cumprod=diffusion.alphas_cumprod, facing_goal=p_facing > 0)
     meta = {"joint_names": list(joint_set.names), "action_names": list(action_names),
             "model_config": OmegaConf.to_container(OmegaConf.structured(mcfg)),
             "diffusion_config": OmegaConf.to_container(OmegaConf.structured(dcfg))}
@@ -102,6 +106,20 @@ def acting_hands(m: MaskConfig, batch: dict, layout, stats, action_names) -> tup
     return acting, hands[moved.argmax(-1)]
 
 
+def facing_goals(m: MaskConfig, batch: dict, layout, stats, generator) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """(facing (B, 2) (sin, cos) of the last frame's yaw in the window frame, given (B,) bool
+    drawn with probability `mask.p_facing`) for `Condition.facing`; None when the config gives
+    no facing goal (and then nothing is drawn from the generator: other recipes keep their
+    random sequence)."""
+    if m.p_facing <= 0:
+        return None
+    joints, _ = layout.decode(stats.denormalize(batch["motion"]))                            # (B, L, J, 3)
+    yaw = facing_yaw(joints[:, -1])                                                          # (B,)
+    gen_device = generator.device if generator is not None else "cpu"
+    given = torch.rand(yaw.shape[0], generator=generator, device=gen_device) < m.p_facing     # (B,)
+    return torch.stack([torch.sin(yaw), torch.cos(yaw)], -1).float(), given
+
+
 def goal_predicted(cfg) -> bool:
     """Whether the model of this config predicts its goal entries (`mask.predict_goal` and x0
     prediction): then the loss covers them and samplers keep the prediction there."""
@@ -118,10 +136,13 @@ def fixed_known_mask(shape, transition: int, goal: bool, device) -> torch.Tensor
 
 
 @torch.no_grad()
-def sample_windows(model, diffusion, batch: dict, cfg, device, generator, steps: int = DEFAULT_STEPS) -> torch.Tensor:
-    """Sample windows for a batch, pinning its first 2 frames and its goal (as sampling does)."""
+def sample_windows(model, diffusion, batch: dict, cfg, device, generator, steps: int = DEFAULT_STEPS,
+                   facing: torch.Tensor | None = None) -> torch.Tensor:
+    """Sample windows for a batch, pinning its first 2 frames and its goal (as sampling does);
+    `facing` (B, 2): a facing goal for a model built with one (`Condition.facing`)."""
     x0 = batch["motion"].to(device)
-    cond = Condition(scene=batch["scene"].to(device) if "scene" in batch else None, actions=batch["actions"].to(device))
+    cond = Condition(scene=batch["scene"].to(device) if "scene" in batch else None, actions=batch["actions"].to(device),
+                     facing=None if facing is None else facing.to(device))
     mask = fixed_known_mask(x0.shape, 2, True, device)
     model.eval()
     replace = replace_mask(mask, goal_predicted(cfg))

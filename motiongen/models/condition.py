@@ -20,10 +20,15 @@ class Condition:
     actions: Tensor | None = None       # (B, L, A) float multi-hot per frame
     drop_scene: Tensor | None = None    # (B,) bool: True -> learned null scene embedding
     drop_actions: Tensor | None = None  # (B,) bool: True -> learned null action embedding
+    # The facing asked for at the window's last frame, a goal like the pelvis and hand goals
+    # (models built with a facing goal, mask.p_facing > 0): (B, 2) float (sin, cos) of its yaw in
+    # the window frame, and (B,) bool which samples are given one (others: a learned null).
+    facing: Tensor | None = None
+    facing_given: Tensor | None = None
 
     @property
     def batch_size(self) -> int | None:
-        for value in (self.scene, self.actions, self.drop_scene, self.drop_actions):
+        for value in (self.scene, self.actions, self.drop_scene, self.drop_actions, self.facing):
             if value is not None:
                 return int(value.shape[0])
         return None
@@ -31,16 +36,16 @@ class Condition:
     def to(self, device: torch.device | str) -> "Condition":
         move = lambda v: None if v is None else v.to(device)  # noqa: E731
         return Condition(move(self.scene), move(self.actions), move(self.drop_scene),
-                         move(self.drop_actions))
+                         move(self.drop_actions), move(self.facing), move(self.facing_given))
 
     def drop_all(self) -> "Condition":
-        """The unconditional twin used by classifier-free guidance: both conditions dropped."""
+        """The unconditional twin used by classifier-free guidance: both conditions dropped. The
+        facing goal stays, as the pelvis and hand goals (known entries) stay in both passes."""
         B = self.batch_size
         if B is None:
             return self
-        device = (self.scene if self.scene is not None else self.actions
-                  if self.actions is not None else self.drop_scene
-                  if self.drop_scene is not None else self.drop_actions).device
+        device = next(v for v in (self.scene, self.actions, self.drop_scene, self.drop_actions, self.facing)
+                      if v is not None).device
         ones = torch.ones(B, dtype=torch.bool, device=device)
         return replace(self, drop_scene=ones, drop_actions=ones.clone())
 
@@ -56,14 +61,16 @@ class Condition:
                 b = torch.zeros(nb, dtype=torch.bool, device=a.device)
             return torch.cat([a, b], 0)
 
-        if (self.scene is None) != (other.scene is None) or (self.actions is None) != (other.actions is None):
-            raise ValueError("Condition.concat: scene/actions present in one condition but not the other")
+        pairs = [(self.scene, other.scene), (self.actions, other.actions), (self.facing, other.facing)]
+        if any((a is None) != (b is None) for a, b in pairs):
+            raise ValueError("Condition.concat: scene/actions/facing present in one condition but not the other")
         na, nb = self.batch_size, other.batch_size
+        both = lambda a, b: None if a is None else torch.cat([a, b], 0)  # noqa: E731
         return Condition(
-            None if self.scene is None else torch.cat([self.scene, other.scene], 0),
-            None if self.actions is None else torch.cat([self.actions, other.actions], 0),
+            both(self.scene, other.scene), both(self.actions, other.actions),
             cat(self.drop_scene, other.drop_scene, nb, na),
             cat(self.drop_actions, other.drop_actions, nb, na),
+            both(self.facing, other.facing), both(self.facing_given, other.facing_given),
         )
 
 
@@ -80,7 +87,7 @@ def drop_conditions(cond: Condition, p_scene: float, p_action: float,
         return cond
     gen_device = generator.device if generator is not None else torch.device("cpu")
     u = torch.rand(2, B, generator=generator, device=gen_device)  # (2, B)
-    device = next(v for v in (cond.scene, cond.actions, cond.drop_scene, cond.drop_actions)
+    device = next(v for v in (cond.scene, cond.actions, cond.drop_scene, cond.drop_actions, cond.facing)
                   if v is not None).device
     drop_s = (u[0] < p_scene).to(device)
     drop_a = (u[1] < p_action).to(device)

@@ -39,6 +39,7 @@ class EncodedCondition:
     token0: Tensor                 # (B, W) scene + action embeddings (nulls where dropped)
     per_frame: Tensor | None       # (B, L, W) per-frame action embeddings, or None
     broadcast: bool = False
+    last_frame: Tensor | None = None   # (B, W) the facing goal's embedding, added to the last frame's token
 
     def drop_all(self) -> "EncodedCondition":
         raise TypeError("drop conditions before encoding: model.encode_condition(cond.drop_all())")
@@ -51,14 +52,16 @@ class EncodedCondition:
             a = a._expand(b.token0.shape[0])
         if b.broadcast:
             b = b._expand(a.token0.shape[0])
-        if (a.per_frame is None) != (b.per_frame is None):
-            raise ValueError("EncodedCondition.concat: per-frame embeddings in one half only")
-        frames = None if a.per_frame is None else torch.cat([a.per_frame, b.per_frame], 0)
-        return EncodedCondition(torch.cat([a.token0, b.token0], 0), frames)
+        if (a.per_frame is None) != (b.per_frame is None) or (a.last_frame is None) != (b.last_frame is None):
+            raise ValueError("EncodedCondition.concat: per-frame or last-frame embeddings in one half only")
+        both = lambda u, v: None if u is None else torch.cat([u, v], 0)  # noqa: E731
+        return EncodedCondition(torch.cat([a.token0, b.token0], 0), both(a.per_frame, b.per_frame),
+                                last_frame=both(a.last_frame, b.last_frame))
 
     def _expand(self, n: int) -> "EncodedCondition":
         frames = None if self.per_frame is None else self.per_frame.expand(n, -1, -1)
-        return EncodedCondition(self.token0.expand(n, -1), frames)
+        last = None if self.last_frame is None else self.last_frame.expand(n, -1)
+        return EncodedCondition(self.token0.expand(n, -1), frames, last_frame=last)
 
 
 class TimestepEmbedder(nn.Module):
@@ -76,7 +79,7 @@ class TimestepEmbedder(nn.Module):
 class Denoiser(nn.Module):
     def __init__(self, cfg: ModelConfig, num_joints: int, num_actions: int, window: int,
                  scene_res: tuple[int, int, int] = (32, 32, 32), channels: int | None = None,
-                 alphas_cumprod: Tensor | None = None):
+                 alphas_cumprod: Tensor | None = None, facing_goal: bool = False):
         super().__init__()
         W = cfg.width
         self.cfg = cfg
@@ -123,6 +126,14 @@ class Denoiser(nn.Module):
             self.action_null_frames = (nn.Parameter(torch.randn(W) * 0.02)
                                        if cfg.action_per_frame else None)
             self._action_memo = ActionMemo()
+        # A facing goal (mask.p_facing > 0): the yaw asked for at the last frame, as (sin, cos)
+        # through a small MLP onto that frame's token. Given as two hip positions (known entries)
+        # it was not followed: a goal placed to a few per cent of the window's range does not fix
+        # a facing across a body's 0.18 m width (docs/results.md, "A facing goal on the quality recipe").
+        self.facing_embed = self.facing_null = None
+        if facing_goal:
+            self.facing_embed = nn.Sequential(nn.Linear(2, W), nn.SiLU(), nn.Linear(W, W))
+            self.facing_null = nn.Parameter(torch.randn(W) * 0.02)
 
     _blocks_dtype: torch.dtype | None = None
     # Sampling looks the action encoder's outputs up by label window (`ActionMemo`); False runs
@@ -195,7 +206,17 @@ class Denoiser(nn.Module):
             pooled, frames = self._encode_actions(cond.actions, cond.drop_actions, n)
             token0 = token0 + pooled
             per_frame = frames
-        return EncodedCondition(token0, per_frame, broadcast=B is None)
+        last = self._encode_facing(cond, n) if self.facing_embed is not None else None
+        return EncodedCondition(token0, per_frame, broadcast=B is None, last_frame=last)
+
+    def _encode_facing(self, cond: Condition, n: int) -> Tensor:
+        """(n, W) the facing goal's embedding, the learned null where a sample has none."""
+        if cond.facing is None:
+            return self.facing_null.expand(n, -1)
+        emb = self.facing_embed(cond.facing.to(self.facing_null.dtype))                    # (n, W)
+        given = cond.facing_given if cond.facing_given is not None else torch.ones(n, dtype=torch.bool,
+                                                                                      device=emb.device)
+        return torch.where(given[:, None], emb, self.facing_null.expand_as(emb))
 
     def _with_null(self, value: Tensor | None, drop: Tensor | None, n: int, encode, null: Tensor) -> Tensor:
         if value is None:
@@ -248,6 +269,9 @@ class Denoiser(nn.Module):
         h = self.input(inp) * self.input_scale  # (B, L, W)
         if enc.per_frame is not None:
             h = h + enc.per_frame[:, :L]
+        if enc.last_frame is not None:
+            # the goal frame, where the pelvis and hand goals are given too
+            h = torch.cat([h[:, :-1], h[:, -1:] + enc.last_frame[:, None]], 1)
         tok0 = self.t_embed(t) + enc.token0  # (B, W); token0 may be (1, W) and broadcast
         h = torch.cat([tok0[:, None], h], 1) + self.pos[: L + 1]  # (B, L+1, W)
         # the layers may hold bfloat16 weights for sampling (blocks_to); the ends stay float32
@@ -288,8 +312,8 @@ def lowpass_projection(length: int, k: int, device, dtype) -> Tensor:
 
 def build_model(cfg: ModelConfig, num_joints: int, num_actions: int, window: int,
                 scene_res: tuple[int, int, int] = (32, 32, 32), channels: int | None = None,
-                alphas_cumprod: Tensor | None = None) -> Denoiser:
-    return Denoiser(cfg, num_joints, num_actions, window, scene_res, channels, alphas_cumprod)
+                alphas_cumprod: Tensor | None = None, facing_goal: bool = False) -> Denoiser:
+    return Denoiser(cfg, num_joints, num_actions, window, scene_res, channels, alphas_cumprod, facing_goal)
 
 
 def count_parameters(model: nn.Module) -> int:

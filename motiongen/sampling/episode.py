@@ -55,6 +55,7 @@ class LoopSpec:
     device: torch.device           # the network's
     sampler: SamplerSettings
     generator: torch.Generator | None   # the diffusion noise's (reproducible runs)
+    facing_goal: bool = False      # the network is given a facing where it is given a hand goal
 
 
 def loop_spec(loaded, route: Route, num_samples: int, loop: LoopConfig, start_yaw: float | None,
@@ -75,7 +76,8 @@ def loop_spec(loaded, route: Route, num_samples: int, loop: LoopConfig, start_ya
     blend_s = LoopConfig.seam_blend if loop.seam_blend is None else float(loop.seam_blend)
     return LoopSpec(num_samples, L, loaded.layout.channels, k, model_fps, model_reach(loaded.stats, loop),
                     loaded.predict_goal and not loop.pin_goal, round(blend_s * model_fps), loop.body_scale,
-                    start_frame(route, start_yaw), next(loaded.model.parameters()).device, sampler, generator)
+                    start_frame(route, start_yaw), next(loaded.model.parameters()).device, sampler, generator,
+                    loop.facing_goal and loaded.mask.p_facing > 0)
 
 
 def start_frame(route: Route, start_yaw: float | None) -> np.ndarray:

@@ -134,6 +134,11 @@ class LoopConfig:
     # own hand is on the object on a third as many pick-up frames (docs/results.md, "The hand
     # goal on arrival").
     hand_goal_on_arrival: bool = True
+    # In the episodes of an action with a hand goal (not the one walking onto its spot), a
+    # checkpoint trained with a facing goal (mask.p_facing > 0) is also asked to end facing the
+    # object from its pelvis goal, as the data's people stand to what they pick up; others
+    # ignore it.
+    facing_goal: bool = True
     # Actions done on a surface (a seat, a bed): while acting, the goal also gives the pelvis
     # height, `seat_offset` m above the top of the furniture under the goal (the pelvis joint of
     # a seated SMPL-X body; the synthetic data's median is 0.095). Needs a checkpoint trained

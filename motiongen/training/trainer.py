@@ -13,7 +13,7 @@ import hashlib
 import logging
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Iterator
 
@@ -25,7 +25,7 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from motiongen.cli import Interrupted
 from motiongen.diffusion.masks import MaskConfig, loss_mask
 from motiongen.errors import MotiongenError
-from motiongen.loading.build import (acting_hands, batch_condition, goal_predicted, hand_goal_weights,
+from motiongen.loading.build import (acting_hands, batch_condition, facing_goals, goal_predicted, hand_goal_weights,
                                      known_mask_for_batch, loss_channel_weights, mask_config)
 from motiongen.loading.checkpoint import remove_orphan_temps, save_checkpoint
 from motiongen.training import distributed as dd
@@ -131,6 +131,9 @@ def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
     known_mask = known_mask_for_batch(run.cfg, x0.shape, run.ds.joint_set.num_joints, device, gen,
                                       acting_hands(loop.mask, batch, run.train_set.layout, run.train_set.stats,
                                                    run.ds.action_names))
+    facing = facing_goals(loop.mask, batch, run.train_set.layout, run.train_set.stats, gen)
+    if facing is not None:
+        cond = replace(cond, facing=facing[0].to(device), facing_given=facing[1].to(device))
     if run.tc.rollout_p > 0 and run.step >= run.tc.rollout_start:
         x0, n_own = own_transitions(run.ema.model, run.diffusion, batch, x0, known_mask, run.train_set.previous,
                                     run.train_set.layout, run.train_set.stats, run.cfg, run.tc.rollout_p,
