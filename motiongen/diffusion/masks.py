@@ -37,8 +37,8 @@ class MaskConfig:
     hand_actions: tuple = ("pick up",)
     goal_joint: int = 0         # pelvis
     # Probability that a window is given its last frame's facing (a yaw, not a known entry:
-    # `Condition.facing`); > 0 builds the model with that input. The sampler gives it where it
-    # gives a hand goal: facing the object (`LoopConfig.facing_goal`).
+    # `Condition.facing`); > 0 builds the model with that input. The sampler gives it in the
+    # episodes of a hand action: facing the object (`LoopConfig.facing_goal`).
     p_facing: float = 0.0
     # True: goal entries condition the model and are part of its loss, and samplers keep the
     # model's own prediction there (only transition frames are written into the result), so
