@@ -6,6 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 from motiongen.data.representation import Layout
 from motiongen.data.windows import NormStats
@@ -224,3 +225,32 @@ def test_pace_is_how_far_the_pelvis_steps_are_from_the_datas():
     assert list(body_losses(trainer_run(TrainConfig(w_pace=0.1)))(x0, x0, free, T0)) == ["pace"]
     with pytest.raises(ConfigError, match="train.w_pace"):
         TrainConfig(w_pace=-0.1)
+
+
+def test_the_facing_goal_term_counts_the_last_quarter_of_windows_given_a_facing():
+    """Two windows, the second given a facing goal: a body turned by θ over the last quarter (2
+    of 8 frames) of both reads the facing term's chord on the second only, and 0 where its turn
+    is in the first frames; nothing given (the loop sets no flags), no term."""
+    rest = np.repeat(REST[None].astype(np.float64), L, 0)                             # (L, 22, 3)
+    planted = np.ones((L, 4), bool)
+    x0 = torch.cat([window(rest, planted)] * 2)
+    late, early = rest.copy(), rest.copy()
+    late[-2:], early[:2] = turn(rest[-2:], 0.5), turn(rest[:2], 0.5)
+    goal = BodyLosses(LAYOUT, STATS, BODY.parents, FPS, 0.0, 0.0, w_facing_goal=0.3)
+    goal.facing_given = torch.tensor([False, True])
+    chord = 2 * np.sin(0.25) * across_vectors(torch.as_tensor(REST)).norm().item()
+    free = torch.ones_like(x0)
+    for turned, want in ((late, chord), (early, 0.0)):
+        weight, term = goal(torch.cat([window(turned, planted)] * 2), x0, free, torch.tensor([0, 0]))["facing_goal"]
+        assert weight == 0.3 and term.item() == pytest.approx(want, abs=1e-9, rel=1e-6)
+    goal.facing_given = None
+    assert goal(x0, x0, free, torch.tensor([0, 0])) == {}
+
+
+def test_a_facing_goal_term_without_facing_goals_is_one_line():
+    run = trainer_run(TrainConfig(w_facing_goal=0.2))
+    run.cfg = OmegaConf.create({"mask": {"p_facing": 0.0}})
+    with pytest.raises(ConfigError, match=r"train.w_facing_goal=0.2 needs facing goals \(mask.p_facing > 0\)"):
+        body_losses(run)
+    run.cfg = OmegaConf.create({"mask": {"p_facing": 0.5}})
+    assert body_losses(run).w_facing_goal == 0.2

@@ -38,6 +38,9 @@ class TrainConfig:
     # Weight of the facing term: how far (m) the prediction's left-to-right hip and shoulder
     # vectors are from the clean window's, per frame (training/body_losses.py). 0 = off.
     w_facing: float = 0.0
+    # Weight of the same term on the windows given a facing goal (mask.p_facing), over their
+    # last quarter of frames: the goal followed (training/body_losses.py). 0 = off.
+    w_facing_goal: float = 0.0
     # Weight of the foot-height term: how far (m) the prediction's ankles and toes are from the
     # clean window's in height, per frame (training/body_losses.py). 0 = off.
     w_foot_height: float = 0.0
@@ -83,7 +86,7 @@ class TrainConfig:
             r(f"train.{key}", getattr(self, key), 0, integer=True)
         r("train.lr", self.lr, 0, lo_open=True)   # no ceiling: lr=1e20 is how a diverging run is reproduced
         for key in ("weight_decay", "grad_clip", "pelvis_loss_weight", "hand_goal_weight", "w_bone_length",
-                    "w_planted_feet", "w_facing", "w_foot_height", "w_foot_offset", "w_pace"):
+                    "w_planted_feet", "w_facing", "w_foot_height", "w_foot_offset", "w_pace", "w_facing_goal"):
             r(f"train.{key}", getattr(self, key), 0)
         for key in ("min_lr_ratio", "cond_drop_scene", "cond_drop_actions", "rollout_p"):
             r(f"train.{key}", getattr(self, key), 0, 1)

@@ -24,7 +24,7 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 
 from motiongen.cli import Interrupted
 from motiongen.diffusion.masks import MaskConfig, loss_mask
-from motiongen.errors import MotiongenError
+from motiongen.errors import ConfigError, MotiongenError
 from motiongen.loading.build import (acting_hands, batch_condition, facing_goals, goal_predicted, hand_goal_weights,
                                      known_mask_for_batch, loss_channel_weights, mask_config)
 from motiongen.loading.checkpoint import remove_orphan_temps, save_checkpoint
@@ -113,12 +113,15 @@ def _start_loop(run: Run) -> _Loop:
 def body_losses(run: Run) -> BodyLosses | None:
     """The geometry terms the config asks for, or None (every weight 0)."""
     tc, ws = run.tc, run.train_set
-    if max(tc.w_bone_length, tc.w_planted_feet, tc.w_facing, tc.w_foot_height, tc.w_foot_offset, tc.w_pace) <= 0:
+    if max(tc.w_bone_length, tc.w_planted_feet, tc.w_facing, tc.w_foot_height, tc.w_foot_offset, tc.w_pace,
+           tc.w_facing_goal) <= 0:
         return None
+    if tc.w_facing_goal > 0 and mask_config(run.cfg).p_facing <= 0:
+        raise ConfigError(f"train.w_facing_goal={tc.w_facing_goal} needs facing goals (mask.p_facing > 0)")
     weights = run.diffusion.alphas_cumprod if tc.geometry_weighting == "signal" else None   # (T,)
     return BodyLosses(ws.layout, ws.stats, run.ds.joint_set.parents, run.ds.fps / ws.cfg.stride,
                       tc.w_bone_length, tc.w_planted_feet, weights, tc.geometry_start, tc.geometry_ramp,
-                      tc.w_facing, tc.w_foot_height, tc.w_foot_offset, tc.w_pace)
+                      tc.w_facing, tc.w_foot_height, tc.w_foot_offset, tc.w_pace, tc.w_facing_goal)
 
 
 def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
@@ -143,6 +146,7 @@ def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
     noise = torch.randn(x0.shape, device=device, generator=gen)
     if loop.body is not None:
         loop.body.step = run.step
+        loop.body.facing_given = None if facing is None else facing[1].to(device)
     with loop.autocast:
         losses = run.diffusion.training_losses(run.net, x0, t, cond, known=x0, known_mask=known_mask, noise=noise,
                                                channel_weights=loop.weights,
