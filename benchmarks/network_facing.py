@@ -7,7 +7,9 @@ compared with the data's window:
   with the facing taken from the hips (as every table does) and from the shoulders;
 - the distance between the two hips, which a rigid pelvis keeps (the data's is constant) and
   which no bone-length figure sees: a hip folded in under the pelvis keeps its bone's length;
-- how far the last frame's facing (from the hips) is from the data's.
+- how far the last frame's facing (from the hips) is from the data's, over all windows and over
+  those whose body turns by 30° or more, with how far the data and the network turn there
+  (and, for a model trained with a facing goal, the same given the data's facing).
 A network whose hips fold in has a facing that the hips no longer tell; one whose shoulders are
 also off its travel walks sideways.
 
@@ -115,9 +117,14 @@ def last_frame_facing(data: np.ndarray, net: np.ndarray, given: str) -> None:
     off = yaw_apart(yaw[1], yaw[0])
     turn = yaw_apart(facing_yaw(data[:, -1]), facing_yaw(data[:, 0]))                         # (B,)
     turning = turn >= TURNING_DEG
-    on_turns = f"{quartiles(off[turning], '°')}" if turning.any() else "none"
+    if not turning.any():
+        print(f"  the last frame's facing (hips) is {quartiles(off, '°')} off the data's{given}; no window turns by "
+              f"{TURNING_DEG}° or more")
+        return
+    net_turn = yaw_apart(facing_yaw(net[:, -1]), facing_yaw(net[:, 0]))                       # (B,)
     print(f"  the last frame's facing (hips) is {quartiles(off, '°')} off the data's{given}; "
-          f"{on_turns} on the {int(turning.sum())} windows turning by {TURNING_DEG}° or more")
+          f"{quartiles(off[turning], '°')} on the {int(turning.sum())} windows turning by {TURNING_DEG}° or more, "
+          f"where the data turns by {quartiles(turn[turning], '°')} and the network by {quartiles(net_turn[turning], '°')}")
 
 
 if __name__ == "__main__":
