@@ -31,7 +31,7 @@ from motiongen.errors import ConfigError
 from motiongen.eval.evaluate_config import dataset_config
 from motiongen.geometry import facing_yaw
 from motiongen.importers.sources import open_dataset
-from motiongen.loading.build import load_model, sample_windows
+from motiongen.loading.build import last_facing, load_model, sample_windows
 from motiongen.metrics import heading_off_travel_angles
 from motiongen.skeleton import LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 
@@ -72,10 +72,7 @@ def predict_on_windows(loaded, ds, split: str, n: int, steps: int,
     with `facing`, also the data's last-frame facing (a model trained with `mask.p_facing`)."""
     batch = random_windows(loaded, ds, split, n)
     x0 = batch["motion"]                                                                       # (B, L, D)
-    goal = None
-    if facing:
-        yaw = facing_yaw(loaded.layout.decode(loaded.stats.denormalize(x0))[0][:, -1])          # (B,)
-        goal = torch.stack([torch.sin(yaw), torch.cos(yaw)], -1).float()
+    goal = last_facing(x0, loaded.layout, loaded.stats) if facing else None                   # (B, 2)
     x = sample_windows(loaded.model, loaded.diffusion, batch, loaded.config, loaded.device,
                        torch.Generator().manual_seed(0), steps, goal)
     data, net = (loaded.layout.decode(loaded.stats.denormalize(m))[0].numpy().astype(np.float64) for m in (x0, x))
@@ -115,13 +112,13 @@ def last_frame_facing(data: np.ndarray, net: np.ndarray, given: str) -> None:
     (N, L, J, 3) and over those whose body turns by 30° or more from its first frame."""
     yaw = facing_yaw(np.stack([data[:, -1], net[:, -1]]))                                     # (2, B)
     off = yaw_apart(yaw[1], yaw[0])
-    turn = yaw_apart(facing_yaw(data[:, -1]), facing_yaw(data[:, 0]))                         # (B,)
+    turn = yaw_apart(yaw[0], facing_yaw(data[:, 0]))                                           # (B,)
     turning = turn >= TURNING_DEG
     if not turning.any():
         print(f"  the last frame's facing (hips) is {quartiles(off, '°')} off the data's{given}; no window turns by "
               f"{TURNING_DEG}° or more")
         return
-    net_turn = yaw_apart(facing_yaw(net[:, -1]), facing_yaw(net[:, 0]))                       # (B,)
+    net_turn = yaw_apart(yaw[1], facing_yaw(net[:, 0]))                                        # (B,)
     print(f"  the last frame's facing (hips) is {quartiles(off, '°')} off the data's{given}; "
           f"{quartiles(off[turning], '°')} on the {int(turning.sum())} windows turning by {TURNING_DEG}° or more, "
           f"where the data turns by {quartiles(turn[turning], '°')} and the network by {quartiles(net_turn[turning], '°')}")

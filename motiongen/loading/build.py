@@ -113,11 +113,18 @@ def facing_goals(m: MaskConfig, batch: dict, layout, stats, generator) -> tuple[
     random sequence)."""
     if m.p_facing <= 0:
         return None
-    joints, _ = layout.decode(stats.denormalize(batch["motion"]))                            # (B, L, J, 3)
-    yaw = facing_yaw(joints[:, -1])                                                          # (B,)
+    facing = last_facing(batch["motion"], layout, stats)                                     # (B, 2)
     gen_device = generator.device if generator is not None else "cpu"
-    given = torch.rand(yaw.shape[0], generator=generator, device=gen_device) < m.p_facing     # (B,)
-    return torch.stack([torch.sin(yaw), torch.cos(yaw)], -1).float(), given
+    given = torch.rand(facing.shape[0], generator=generator, device=gen_device) < m.p_facing  # (B,)
+    return facing, given
+
+
+def last_facing(motion: torch.Tensor, layout, stats) -> torch.Tensor:
+    """(B, 2) float32 (sin, cos) of the last frame's yaw (from the hips) of normalised windows
+    motion (B, L, D), in their window frame: the facing goal they carry (`Condition.facing`)."""
+    joints, _ = layout.decode(stats.denormalize(motion))                                     # (B, L, J, 3)
+    yaw = facing_yaw(joints[:, -1])                                                          # (B,)
+    return torch.stack([torch.sin(yaw), torch.cos(yaw)], -1).float()
 
 
 def goal_predicted(cfg) -> bool:

@@ -55,7 +55,7 @@ class LoopSpec:
     device: torch.device           # the network's
     sampler: SamplerSettings
     generator: torch.Generator | None   # the diffusion noise's (reproducible runs)
-    facing_goal: bool = False      # the network is given a facing where it is given a hand goal
+    facing_goal: bool = False      # the network is asked to face the object in a hand action's own episodes
 
 
 def loop_spec(loaded, route: Route, num_samples: int, loop: LoopConfig, start_yaw: float | None,
