@@ -247,6 +247,28 @@ def test_the_facing_goal_term_counts_the_last_quarter_of_windows_given_a_facing(
     assert goal(x0, x0, free, torch.tensor([0, 0])) == {}
 
 
+def test_the_squared_facing_goal_term_is_the_chord_squared():
+    """`facing_goal_norm=squared`: the same body turned by θ over the last quarter reads the
+    chord's square (m²), and twice the turn's chord gives four times the term."""
+    rest = np.repeat(REST[None].astype(np.float64), L, 0)                             # (L, 22, 3)
+    planted = np.ones((L, 4), bool)
+    x0 = window(rest, planted)
+    goal = BodyLosses(LAYOUT, STATS, BODY.parents, FPS, 0.0, 0.0, w_facing_goal=5.0, facing_goal_norm="squared")
+    goal.facing_given = torch.tensor([True])
+    width = across_vectors(torch.as_tensor(REST)).norm().item()
+    free = torch.ones_like(x0)
+    for angle in (0.2, 0.5):
+        late = rest.copy()
+        late[-2:] = turn(rest[-2:], angle)
+        weight, term = goal(window(late, planted), x0, free, torch.tensor([0]))["facing_goal"]
+        assert weight == 5.0 and term.item() == pytest.approx((2 * np.sin(angle / 2) * width) ** 2, rel=1e-6)
+
+
+def test_a_bad_facing_goal_norm_is_one_line():
+    with pytest.raises(ConfigError, match="train.facing_goal_norm: expected one of l1, squared, got 'l2'"):
+        TrainConfig(facing_goal_norm="l2")
+
+
 def test_a_facing_goal_term_without_facing_goals_is_one_line():
     run = trainer_run(TrainConfig(w_facing_goal=0.2))
     run.cfg = OmegaConf.create({"mask": {"p_facing": 0.0}})

@@ -37,6 +37,9 @@ pinned values elsewhere), in metres, over the frames with any free entry:
   last quarter of frames only: what the goal asks for. In the diffusion loss alone the
   quality-size network turned by 7 degrees (median) on validation windows where the data turns by
   89, and given the goal it turned little more (docs/results.md, "A facing goal as an angle").
+  `squared` (`train.facing_goal_norm`) takes |â − a|² instead: the across vectors are linear in
+  the joints, so its best prediction is the mean the diffusion loss asks of x̂0, where the
+  l1 term's (a median) pulls x̂0 away from it at noise levels where the facing is uncertain.
 * pace: |Δp̂ − Δp| (m/s) between the prediction's and the clean window's pelvis steps along the
   floor, over consecutive frame pairs with a free frame (the step from the last pinned frame
   into the first drawn one included), mean over them. The demo-size network leapt 5-7 cm into
@@ -72,7 +75,7 @@ class BodyLosses:
     def __init__(self, layout: Layout, stats: NormStats, parents, fps: float, w_bone: float, w_foot: float,
                  noise_weights: torch.Tensor | None = None, start: int = 0, ramp: int = 0, w_facing: float = 0.0,
                  w_foot_height: float = 0.0, w_foot_offset: float = 0.0, w_pace: float = 0.0,
-                 w_facing_goal: float = 0.0):
+                 w_facing_goal: float = 0.0, facing_goal_norm: str = "l1"):
         if w_foot > 0 and not layout.num_contacts:
             raise ConfigError("train.w_planted_feet needs stance channels (window.contact_joints)")
         self.layout, self.stats, self.fps = layout, stats, float(fps)
@@ -83,6 +86,7 @@ class BodyLosses:
         self.w_foot_offset = float(w_foot_offset)
         self.w_pace = float(w_pace)
         self.w_facing_goal = float(w_facing_goal)
+        self.facing_goal_squared = facing_goal_norm == "squared"
         self.facing_given: torch.Tensor | None = None   # (B,) bool: the batch's facing goals, set by the loop
         self.noise_weights = noise_weights        # (T,) per diffusion step, or None: uniform
         self.start, self.ramp = int(start), int(ramp)
@@ -114,14 +118,16 @@ class BodyLosses:
         if self.w_foot > 0:
             out["planted_feet"] = (scale * self.w_foot, self._feet(j_hat, planted, frames))
         if self.w_facing > 0 or self.w_facing_goal > 0:
-            facing_err = (across_vectors(j_hat) - across_vectors(j)).norm(dim=-1)          # (B, L)
+            facing_diff = across_vectors(j_hat) - across_vectors(j)                        # (B, L, 6)
+            facing_err = facing_diff.norm(dim=-1)                                           # (B, L)
         if self.w_facing > 0:
             out["facing"] = (scale * self.w_facing, frame_mean(facing_err, frames))
         if self.w_facing_goal > 0 and self.facing_given is not None:
             L = frames.shape[1]
             last = (torch.arange(L, device=frames.device) >= L - max(1, L // 4)).to(frames)   # (L,)
             w = frames * last[None] * self.facing_given.to(frames)[:, None]                   # (B, L)
-            out["facing_goal"] = (scale * self.w_facing_goal, frame_mean(facing_err, w))
+            err = facing_diff.square().sum(-1) if self.facing_goal_squared else facing_err    # (B, L) m² or m
+            out["facing_goal"] = (scale * self.w_facing_goal, frame_mean(err, w))
         if self.w_foot_height > 0:
             feet = list(FOOT_JOINTS)
             err = (j_hat[..., feet, 1] - j[..., feet, 1]).abs().mean(-1)                   # (B, L)

@@ -41,6 +41,9 @@ class TrainConfig:
     # Weight of the same term on the windows given a facing goal (mask.p_facing), over their
     # last quarter of frames: the goal followed (training/body_losses.py). 0 = off.
     w_facing_goal: float = 0.0
+    # How that term measures the miss: l1 |â − a| (m), or squared |â − a|² (m²), whose best
+    # prediction is the mean the diffusion loss asks for (training/body_losses.py).
+    facing_goal_norm: str = "l1"
     # Weight of the foot-height term: how far (m) the prediction's ankles and toes are from the
     # clean window's in height, per frame (training/body_losses.py). 0 = off.
     w_foot_height: float = 0.0
@@ -91,6 +94,7 @@ class TrainConfig:
         for key in ("min_lr_ratio", "cond_drop_scene", "cond_drop_actions", "rollout_p"):
             r(f"train.{key}", getattr(self, key), 0, 1)
         require_choice("train.geometry_weighting", self.geometry_weighting, ("uniform", "signal"))
+        require_choice("train.facing_goal_norm", self.facing_goal_norm, ("l1", "squared"))
         # 1 or more makes the EMA weights grow without bound (1.5 reached 4.7e22).
         r("train.ema_decay", self.ema_decay, 0, 1, hi_open=True)
         require_choice("train.lr_schedule", self.lr_schedule, LR_SCHEDULES)

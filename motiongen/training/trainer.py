@@ -121,7 +121,8 @@ def body_losses(run: Run) -> BodyLosses | None:
     weights = run.diffusion.alphas_cumprod if tc.geometry_weighting == "signal" else None   # (T,)
     return BodyLosses(ws.layout, ws.stats, run.ds.joint_set.parents, run.ds.fps / ws.cfg.stride,
                       tc.w_bone_length, tc.w_planted_feet, weights, tc.geometry_start, tc.geometry_ramp,
-                      tc.w_facing, tc.w_foot_height, tc.w_foot_offset, tc.w_pace, tc.w_facing_goal)
+                      tc.w_facing, tc.w_foot_height, tc.w_foot_offset, tc.w_pace, tc.w_facing_goal,
+                      tc.facing_goal_norm)
 
 
 def _train_step(run: Run, loop: _Loop, batch: dict) -> None:
