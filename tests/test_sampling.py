@@ -423,3 +423,16 @@ def test_episodes_with_a_hand_goal_ask_a_facing_checkpoint_to_face_the_object():
     assert [np.isfinite(f[0, 0]) for f in asked] == [k == "act" for k in kinds] and "act" in kinds
     np.testing.assert_allclose(given, [[1.0, 0.0]] * len(given), atol=0.1)
     assert all(f is None for f in _facings_asked(facing_goal=False)[1])
+
+
+def test_facing_on_arrival_also_asks_the_episode_that_walks_onto_the_spot():
+    """`loop.facing_on_arrival`: the walking episode given the pick-up's hand goal (the last
+    one, which walks onto the spot) is asked to face the cup too, towards +x from its own pelvis
+    goal; the walking episodes before it, which get no hand goal, are not."""
+    m, asked = _facings_asked(facing_on_arrival=True)
+    kinds = [e.kind for e in m.episodes for _ in range(2)]                             # DDIM-2: two calls each
+    walk_given = [np.isfinite(f[0, 0]) for f, k in zip(asked, kinds) if k == "walk"]
+    assert len(walk_given) >= 4 and walk_given[-2:] == [True, True] and not any(walk_given[:-2]), walk_given
+    arrival = [f[0] for f, k in zip(asked, kinds) if k == "walk" and np.isfinite(f[0, 0])]
+    assert all(f[0] > 0.5 for f in arrival), arrival                                  # sin(yaw) > 0.5: towards +x
+    assert all(np.isfinite(f[0, 0]) for f, k in zip(asked, kinds) if k == "act")

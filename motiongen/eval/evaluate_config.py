@@ -49,6 +49,7 @@ class LoopOverrides:
     seat_shift: bool | None = None  # false: seated bodies are not moved onto their seats
     hand_goal_on_arrival: bool | None = None  # false: only the pick-up's own episodes get the hand goal
     facing_goal: bool | None = None  # false: a checkpoint trained with a facing goal is not given one
+    facing_on_arrival: bool | None = None  # true: ... and it is given one as it walks onto a pick-up's spot
     reach_fraction: float | None = None  # the look-ahead's reach: this x the training windows' farthest pelvis offset
 
 

@@ -59,10 +59,10 @@ def condition_episode(spec: LoopSpec, loaded, query: SceneQuery, tail: Tail | No
     cond = Condition(scene=query(target_frame(to_world, local_t)),
                      actions=torch.from_numpy(one_hot(labels, A)).to(spec.device) if A else None)
     if spec.facing_goal:
-        # only while acting: asked to face the object as it walks onto the spot, the demo network
-        # turned early and stopped 0.2 m off it (docs/results.md, "A facing goal as an angle")
-        acting = np.where(t.hand_labels() == t.label, hand, -1)                              # (S,)
-        facing, given = facing_values(inv, local_t, acting, t.hand_point)
+        # only while acting unless asked: facing the object as it walks onto the spot, the demo
+        # network turned early and stopped 0.2 m off it (docs/results.md, "A facing goal as an angle")
+        asked = hand if spec.facing_on_arrival else np.where(t.hand_labels() == t.label, hand, -1)   # (S,)
+        facing, given = facing_values(inv, local_t, asked, t.hand_point)
         cond = replace(cond, facing=torch.from_numpy(facing).to(spec.device),
                        facing_given=torch.from_numpy(given).to(spec.device))
     return NetworkInputs(pinned, to_world, known, mask.to(spec.device), labels, cond)

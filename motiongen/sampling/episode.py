@@ -56,6 +56,7 @@ class LoopSpec:
     sampler: SamplerSettings
     generator: torch.Generator | None   # the diffusion noise's (reproducible runs)
     facing_goal: bool = False      # the network is asked to face the object in a hand action's own episodes
+    facing_on_arrival: bool = False  # ... and in the episode that walks onto its spot
 
 
 def loop_spec(loaded, route: Route, num_samples: int, loop: LoopConfig, start_yaw: float | None,
@@ -77,7 +78,7 @@ def loop_spec(loaded, route: Route, num_samples: int, loop: LoopConfig, start_ya
     return LoopSpec(num_samples, L, loaded.layout.channels, k, model_fps, model_reach(loaded.stats, loop),
                     loaded.predict_goal and not loop.pin_goal, round(blend_s * model_fps), loop.body_scale,
                     start_frame(route, start_yaw), next(loaded.model.parameters()).device, sampler, generator,
-                    loop.facing_goal and loaded.mask.p_facing > 0)
+                    loop.facing_goal and loaded.mask.p_facing > 0, loop.facing_on_arrival)
 
 
 def start_frame(route: Route, start_yaw: float | None) -> np.ndarray:

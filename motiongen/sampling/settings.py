@@ -139,6 +139,10 @@ class LoopConfig:
     # object from its pelvis goal, as the data's people stand to what they pick up; others
     # ignore it.
     facing_goal: bool = True
+    # The episode that walks onto such an action's spot is asked to end facing the object too.
+    # Off by default: so asked, the demo network turned early and stopped 0.2 m off the spot
+    # (9 of 20 motions stalled; docs/results.md, "A facing goal as an angle").
+    facing_on_arrival: bool = False
     # Actions done on a surface (a seat, a bed): while acting, the goal also gives the pelvis
     # height, `seat_offset` m above the top of the furniture under the goal (the pelvis joint of
     # a seated SMPL-X body; the synthetic data's median is 0.095). Needs a checkpoint trained
