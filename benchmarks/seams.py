@@ -10,7 +10,9 @@ network draws the rest. This prints, for a checkpoint on `windows` of the data's
   pelvis along the floor over the window (the network's feet can stay behind its pelvis);
 - how far the network's one-step estimate x̂0 is from the clean window (pelvis and left toe,
   median cm, at a few frames) at noise levels t, given the clean window's own noised version:
-  a denoiser at t = 1 sees the answer;
+  a denoiser at t = 1 sees the answer; with the height of its toes where they move faster
+  than 0.5 m/s (`toe_clearance.py`'s figure) beside the data's: a network whose estimate
+  lifts the toes no higher at t = 1 than at t = 90 does not take the step from its input;
 and for `sample` outputs (motion.npz), the network's skating (`joints_raw`) within 3 output
 frames of an episode's start and elsewhere, and the same at the model's rate (within 1 frame);
 and per joint its step at the model's rate into each episode's first frame (the loop's own
@@ -25,6 +27,7 @@ import numpy as np
 import torch
 
 from network_facing import files_and_keys, model_and_data, predict_on_windows, random_windows
+from toe_clearance import fast_toe_heights
 
 from motiongen.cli import tool_main
 from motiongen.diffusion.masks import known_mask
@@ -78,15 +81,24 @@ def one_step_error(loaded, ds, split: str, n: int) -> None:
     clean = loaded.layout.decode(loaded.stats.denormalize(x0.double()))[0]                   # (B, L, J, 3)
     gen = torch.Generator().manual_seed(0)
     toe = list(loaded.joint_set.names).index("left_foot")
-    print(f"  one-step x̂0 from the clean window noised to t, median cm at frames {FRAMES} (pelvis; left toe):")
+    fps = ds.fps / loaded.window.stride
+    print(f"  one-step x̂0 from the clean window noised to t, median cm at frames {FRAMES} (pelvis; left toe); "
+          f"moving toes' height, median cm (the data's {moving_toes(clean.numpy(), fps)}):")
     for level in NOISE:
         t = torch.full((B,), max(1, round(level * diffusion.num_timesteps)), dtype=torch.long)
         x_t = torch.where(mask, x0, diffusion.q_sample(x0, t, torch.randn(x0.shape, generator=gen)))
         with torch.no_grad():
             x0_hat = diffusion.predict_x0_eps(model(x_t, t, enc, known_mask=mask), x_t, t)[0]
-        err = (loaded.layout.decode(loaded.stats.denormalize(x0_hat.double()))[0] - clean).norm(dim=-1).numpy()
+        est = loaded.layout.decode(loaded.stats.denormalize(x0_hat.double()))[0]                 # (B, L, J, 3)
+        err = (est - clean).norm(dim=-1).numpy()
         print(f"    t = {int(t[0]):4d}: {' '.join(cm(err[:, f, 0]) for f in FRAMES)}; "
-              f"{' '.join(cm(err[:, f, toe]) for f in FRAMES)}")
+              f"{' '.join(cm(err[:, f, toe]) for f in FRAMES)}; moving toes {moving_toes(est.numpy(), fps)}")
+
+
+def moving_toes(windows: np.ndarray, fps: float) -> str:
+    """The median height (cm) of the toes of windows (B, L, J, 3) on the transitions where they move
+    faster than 0.5 m/s (`toe_clearance.fast_toe_heights`)."""
+    return cm(np.concatenate([fast_toe_heights(w, fps)[0] for w in windows]))
 
 
 def skating_near_seams(path: str) -> str:
