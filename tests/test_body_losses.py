@@ -248,8 +248,8 @@ def test_the_facing_goal_term_counts_the_last_quarter_of_windows_given_a_facing(
 
 
 def test_the_squared_facing_goal_term_is_the_chord_squared():
-    """`facing_goal_norm=squared`: the same body turned by θ over the last quarter reads the
-    chord's square (m²), and twice the turn's chord gives four times the term."""
+    """`facing_goal_norm=squared`: a body turned by θ over the last quarter reads the square
+    (m²) of the across vectors' chord 2 sin(θ/2)·|a|, at two angles."""
     rest = np.repeat(REST[None].astype(np.float64), L, 0)                             # (L, 22, 3)
     planted = np.ones((L, 4), bool)
     x0 = window(rest, planted)
