@@ -139,7 +139,8 @@ class LoopConfig:
     # object from its pelvis goal, as the data's people stand to what they pick up; others
     # ignore it.
     facing_goal: bool = True
-    # The episode that walks onto such an action's spot is asked to end facing the object too.
+    # The episode that walks onto such an action's spot is asked to end facing the object too,
+    # where it is given the hand goal (hand_goal_on_arrival; without it, nothing is asked there).
     # Off by default: so asked, the demo network turned early and stopped 0.2 m off the spot
     # (9 of 20 motions stalled; docs/results.md, "A facing goal as an angle").
     facing_on_arrival: bool = False
