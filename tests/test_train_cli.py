@@ -152,6 +152,28 @@ def test_user_errors_exit_2(dataset, tmp_path, capsys):
     assert not (tmp_path / "ema" / "checkpoints").exists()
 
 
+def test_training_on_from_a_checkpoint_with_other_keys(dataset, tmp_path):
+    """Training on (docs/config.md): `train.resume=PATH` into another run directory with more
+    steps and another loss weight starts at the checkpoint's step, takes the cosine over the
+    new step count from the checkpoint's learning rate (a `train.lr` given again is not
+    applied), and leaves the first run's files alone."""
+    cosine = {"train.lr_schedule": "cosine", "train.warmup_steps": 0, "train.lr": 1e-3}
+    r = _run(_args(dataset, tmp_path / "a", 3, **cosine))
+    assert r.returncode == 0, r.stderr[-2000:]
+    first = tmp_path / "a" / "checkpoints" / "last.pt"
+    before = first.read_bytes()
+    r = _run(_args(dataset, tmp_path / "b", 9, **{**cosine, "train.lr": 5e-2},
+                                                   **{"train.resume": first, "train.w_bone_length": 0.5}))
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert f"resumed from {first} at step 3" in r.stdout
+    assert first.read_bytes() == before
+    at6, last = (_weights(tmp_path / "b" / "checkpoints" / n) for n in ("step_00000006.pt", "last.pt"))
+    assert at6["step"] == 6 and last["step"] == 9 and last["config"]["train"]["w_bone_length"] == 0.5
+    # cosine from 1 to 0.1 over 9 steps, at step 6: 0.1 + 0.9 * (1 + cos(2π/3)) / 2 = 0.325
+    assert at6["optimizer"]["param_groups"][0]["lr"] == pytest.approx(1e-3 * 0.325)
+    assert _weights(first)["optimizer"]["param_groups"][0]["lr"] == pytest.approx(1e-4)    # its own end
+
+
 def test_resume_from_another_model_or_diverged_weights_is_one_line(dataset, tmp_path, capsys):
     """Resuming with another width (97 lines of load_state_dict before) or from a checkpoint
     whose weights are NaN: one line naming the file."""
