@@ -162,8 +162,8 @@ def test_training_on_from_a_checkpoint_with_other_keys(dataset, tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     first = tmp_path / "a" / "checkpoints" / "last.pt"
     before = first.read_bytes()
-    r = _run(_args(dataset, tmp_path / "b", 9, **{**cosine, "train.lr": 5e-2},
-                                                   **{"train.resume": first, "train.w_bone_length": 0.5}))
+    on = {**cosine, "train.lr": 5e-2, "train.resume": first, "train.w_bone_length": 0.5}
+    r = _run(_args(dataset, tmp_path / "b", 9, **on))
     assert r.returncode == 0, r.stderr[-2000:]
     assert f"resumed from {first} at step 3" in r.stdout
     assert first.read_bytes() == before
