@@ -80,7 +80,7 @@ def run(argv: list[str]) -> None:
     loaded, ds = model_and_data(opts["ckpt"])
     wd = WindowDataset(ds, opts["split"], loaded.window, loaded.stats)
     starts = chain_starts(ds, wd, opts["split"], opts["windows"], opts["chains"])
-    fps = ds.fps / loaded.window.stride
+    fps = loaded.model_fps
     print(f"{opts['ckpt']}: {len(starts)} chains of {opts['windows']} windows along the {opts['split']} sequences "
           f"({fps:g} fps, DDIM-{opts['steps']}; windows 2.. measured, their free frames)")
     for own in (False, True):

@@ -76,7 +76,7 @@ def predict_on_windows(loaded, ds, split: str, n: int, steps: int,
     x = sample_windows(loaded.model, loaded.diffusion, batch, loaded.config, loaded.device,
                        torch.Generator().manual_seed(0), steps, goal)
     data, net = (loaded.layout.decode(loaded.stats.denormalize(m))[0].numpy().astype(np.float64) for m in (x0, x))
-    return data, net, ds.fps / loaded.window.stride
+    return data, net, loaded.model_fps
 
 
 def off_travel(joints: np.ndarray, fps: float, pair: tuple[int, int]) -> np.ndarray:

@@ -81,7 +81,7 @@ def one_step_error(loaded, ds, split: str, n: int) -> None:
     clean = loaded.layout.decode(loaded.stats.denormalize(x0.double()))[0]                   # (B, L, J, 3)
     gen = torch.Generator().manual_seed(0)
     toe = list(loaded.joint_set.names).index("left_foot")
-    fps = ds.fps / loaded.window.stride
+    fps = loaded.model_fps
     print(f"  one-step x̂0 from the clean window noised to t, median cm at frames {FRAMES} (pelvis; left toe); "
           f"moving toes' height, median cm (the data's {moving_toes(clean.numpy(), fps)}):")
     for level in NOISE:
